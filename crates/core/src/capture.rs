@@ -1,0 +1,396 @@
+//! The *registered capture*: the on-disk hand-over between geometry and appearance.
+//!
+//! A folder with `capture.json` (this module's [`RegisteredCapture`]) describing image
+//! sources (a video file or still images, with their colour encoding) and, for every
+//! kept frame, how its pixels map to the material plane, where its camera was and
+//! where the light was. The appearance stage reads only this, so alignment, still-photo
+//! import, other tools and the simulator's ground truth can all produce it.
+//! Paths inside are relative to the folder holding `capture.json`.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+
+use crate::geometry::{mat3_from_rows, Camera, Intrinsics, Pose, RadialDistortion, Vec2, Vec3};
+use crate::homography::Homography;
+use crate::maps::Encoding;
+use crate::plane::Region;
+use crate::CoreError;
+
+/// Value of the `format` field.
+pub const CAPTURE_FORMAT: &str = "svbrdf-registered-capture";
+/// Version this code writes and reads.
+pub const CAPTURE_VERSION: u32 = 1;
+/// File name inside a capture folder.
+pub const CAPTURE_FILE: &str = "capture.json";
+
+/// A registered capture (version 1).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RegisteredCapture {
+    /// Always [`CAPTURE_FORMAT`].
+    pub format: String,
+    /// Always [`CAPTURE_VERSION`].
+    pub version: u32,
+    /// Who wrote it (e.g. `svbrdf-synth ground truth`, `svbrdf align`).
+    pub producer: String,
+    /// Length unit of every position: always `"cm"`.
+    pub units: String,
+    /// The region of the plane to reconstruct (cm).
+    pub region: Region,
+    /// Suggested output resolution, pixels per cm.
+    pub px_per_cm: f64,
+    /// Light intensity `I` of eq. (9) in linear pixel units * cm^2 per channel, if known
+    /// (the simulator knows it; a real capture does not, and fitted albedos are then
+    /// relative to an intensity of 1).
+    pub light_intensity: Option<[f64; 3]>,
+    /// Image sources, referenced by index from frames.
+    pub sources: Vec<Source>,
+    /// Kept frames.
+    pub frames: Vec<Frame>,
+}
+
+/// Where frame pixels come from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Source {
+    /// `video`: one video file, frames addressed by index; `images`: one file per frame.
+    pub kind: SourceKind,
+    /// Video file (for `video`) or folder (for `images`), relative to the capture folder.
+    pub path: String,
+    /// Transfer curve of the stored pixel values (phone video and JPEG: `srgb`).
+    pub encoding: Encoding,
+    /// Camera stream: 0 for the flash camera, 1 for a second (no-flash) camera.
+    pub stream: u32,
+}
+
+/// Kind of image source.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum SourceKind {
+    /// A video file.
+    Video,
+    /// A folder of still images.
+    Images,
+}
+
+/// One kept frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Frame {
+    /// Unique id within the capture.
+    pub id: u32,
+    /// Index into `sources`.
+    pub source: usize,
+    /// Frame number in the video (0-based, decode order), for video sources.
+    pub frame_index: Option<u64>,
+    /// File name inside the source folder, for image sources.
+    pub image: Option<String>,
+    /// Capture time in seconds on the flash camera's clock, if known.
+    pub time_s: Option<f64>,
+    /// Image width in pixels (after applying rotation metadata).
+    pub width: u32,
+    /// Image height in pixels.
+    pub height: u32,
+    /// From frame pixels to plane points.
+    pub mapping: FrameMapping,
+    /// Camera centre, cm.
+    pub camera_position: [f64; 3],
+    /// Light (flash) position, cm.
+    pub light_position: [f64; 3],
+}
+
+/// How a frame's pixels map to the plane.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(tag = "kind", rename_all = "snake_case")]
+pub enum FrameMapping {
+    /// A calibrated camera: intrinsics, radial distortion and orientation; the centre is
+    /// the frame's `camera_position`.
+    Pinhole {
+        /// Intrinsics in pixels.
+        intrinsics: Intrinsics,
+        /// Radial distortion.
+        distortion: RadialDistortion,
+        /// world_from_camera rotation, row-major.
+        rotation: [[f64; 3]; 3],
+    },
+    /// Piecewise homographies (the paper's sub-frames): each pixel rectangle has its own
+    /// map from frame pixels to plane cm; where rectangles overlap, results are averaged.
+    Homographies {
+        /// The sub-frames.
+        subframes: Vec<SubFrame>,
+    },
+}
+
+/// A rectangle of frame pixels and its homography to the plane.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SubFrame {
+    /// Inclusive pixel bounds `[x0, y0, x1, y1]` in continuous coordinates.
+    pub rect: [f64; 4],
+    /// plane_from_pixel homography, row-major.
+    pub plane_from_pixel: [[f64; 3]; 3],
+}
+
+impl SubFrame {
+    fn contains(&self, p: Vec2) -> bool {
+        p.x >= self.rect[0] && p.y >= self.rect[1] && p.x <= self.rect[2] && p.y <= self.rect[3]
+    }
+}
+
+/// A frame mapping made ready for repeated evaluation.
+#[derive(Debug, Clone)]
+pub enum PreparedMapping {
+    /// A camera.
+    Camera(Camera),
+    /// Sub-frames with forward and inverse homographies.
+    Homographies(Vec<(SubFrame, Homography, Homography)>),
+}
+
+impl PreparedMapping {
+    /// Build from a frame.
+    pub fn new(frame: &Frame) -> Result<Self, CoreError> {
+        match &frame.mapping {
+            FrameMapping::Pinhole {
+                intrinsics,
+                distortion,
+                rotation,
+            } => Ok(Self::Camera(Camera {
+                intrinsics: *intrinsics,
+                distortion: *distortion,
+                pose: Pose {
+                    rotation: mat3_from_rows(rotation),
+                    centre: Vec3::from(frame.camera_position),
+                },
+            })),
+            FrameMapping::Homographies { subframes } => {
+                let mut out = Vec::with_capacity(subframes.len());
+                for s in subframes {
+                    let h = Homography(mat3_from_rows(&s.plane_from_pixel));
+                    let inv = h.inverse().ok_or_else(|| {
+                        CoreError::Degenerate(format!(
+                            "frame {}: singular sub-frame homography",
+                            frame.id
+                        ))
+                    })?;
+                    out.push((s.clone(), h, inv));
+                }
+                Ok(Self::Homographies(out))
+            }
+        }
+    }
+
+    /// Plane point (cm) seen at a frame pixel.
+    pub fn pixel_to_plane(&self, p: Vec2) -> Option<Vec2> {
+        match self {
+            Self::Camera(c) => c.pixel_to_plane(p),
+            Self::Homographies(subs) => average(
+                subs.iter()
+                    .filter(|s| s.0.contains(p))
+                    .filter_map(|s| s.1.apply(p)),
+            ),
+        }
+    }
+
+    /// Frame pixel that sees a plane point (cm); `None` outside the image.
+    pub fn plane_to_pixel(&self, q: Vec2) -> Option<Vec2> {
+        match self {
+            Self::Camera(c) => c
+                .project(Vec3::new(q.x, q.y, 0.0))
+                .filter(|p| c.intrinsics.contains(*p)),
+            Self::Homographies(subs) => average(
+                subs.iter()
+                    .filter_map(|s| s.2.apply(q).filter(|p| s.0.contains(*p))),
+            ),
+        }
+    }
+}
+
+fn average(it: impl Iterator<Item = Vec2>) -> Option<Vec2> {
+    let (sum, n) = it.fold((Vec2::zeros(), 0usize), |(s, n), p| (s + p, n + 1));
+    (n > 0).then(|| sum / n as f64)
+}
+
+impl RegisteredCapture {
+    /// An empty capture over `region`.
+    pub fn new(producer: impl Into<String>, region: Region, px_per_cm: f64) -> Self {
+        Self {
+            format: CAPTURE_FORMAT.into(),
+            version: CAPTURE_VERSION,
+            producer: producer.into(),
+            units: "cm".into(),
+            region,
+            px_per_cm,
+            light_intensity: None,
+            sources: Vec::new(),
+            frames: Vec::new(),
+        }
+    }
+
+    /// Check internal consistency; `path` names the file in messages.
+    pub fn validate(&self, path: &Path) -> Result<(), CoreError> {
+        let bad = |m: String| Err(CoreError::format(path, m));
+        if self.format != CAPTURE_FORMAT {
+            return bad(format!(
+                "format is {:?}, expected {CAPTURE_FORMAT:?}",
+                self.format
+            ));
+        }
+        if self.version != CAPTURE_VERSION {
+            return bad(format!(
+                "version {} is not supported (expected {CAPTURE_VERSION})",
+                self.version
+            ));
+        }
+        if self.units != "cm" {
+            return bad(format!("units {:?}, expected \"cm\"", self.units));
+        }
+        self.region
+            .validate()
+            .map_err(|e| CoreError::format(path, e.to_string()))?;
+        if !(self.px_per_cm > 0.0 && self.px_per_cm.is_finite()) {
+            return bad(format!("px_per_cm {} (expected > 0)", self.px_per_cm));
+        }
+        let mut ids = std::collections::HashSet::new();
+        for f in &self.frames {
+            if !ids.insert(f.id) {
+                return bad(format!("frame id {} appears twice", f.id));
+            }
+            let Some(src) = self.sources.get(f.source) else {
+                return bad(format!(
+                    "frame {} names source {} but there are {}",
+                    f.id,
+                    f.source,
+                    self.sources.len()
+                ));
+            };
+            match src.kind {
+                SourceKind::Video if f.frame_index.is_none() => {
+                    return bad(format!(
+                        "frame {} comes from a video but has no frame_index",
+                        f.id
+                    ))
+                }
+                SourceKind::Images if f.image.is_none() => {
+                    return bad(format!(
+                        "frame {} comes from images but has no image name",
+                        f.id
+                    ))
+                }
+                _ => {}
+            }
+            if f.light_position[2] <= 0.0 || f.camera_position[2] <= 0.0 {
+                return bad(format!(
+                    "frame {}: camera z {} cm and light z {} cm must be above the plane (> 0)",
+                    f.id, f.camera_position[2], f.light_position[2]
+                ));
+            }
+            PreparedMapping::new(f).map_err(|e| CoreError::format(path, e.to_string()))?;
+        }
+        Ok(())
+    }
+
+    /// Read `capture.json` from a folder (or a direct path to the file) and validate it.
+    pub fn load(path: &Path) -> Result<Self, CoreError> {
+        let file = if path.is_dir() {
+            path.join(CAPTURE_FILE)
+        } else {
+            path.to_path_buf()
+        };
+        let cap: Self = crate::fsutil::read_json(&file)?;
+        cap.validate(&file)?;
+        Ok(cap)
+    }
+
+    /// Write `capture.json` into a folder, atomically.
+    pub fn save(&self, dir: &Path) -> Result<(), CoreError> {
+        let file = dir.join(CAPTURE_FILE);
+        self.validate(&file)?;
+        crate::fsutil::write_json(&file, self)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::mat3_to_rows;
+
+    fn frame(mapping: FrameMapping) -> Frame {
+        Frame {
+            id: 0,
+            source: 0,
+            frame_index: Some(0),
+            image: None,
+            time_s: Some(0.0),
+            width: 640,
+            height: 480,
+            mapping,
+            camera_position: [1.0, 2.0, 15.0],
+            light_position: [2.4, 1.7, 15.0],
+        }
+    }
+
+    #[test]
+    fn homography_mapping_agrees_with_camera_without_distortion() {
+        let intr = Intrinsics::from_fov(640, 480, 70.0).unwrap();
+        let pose = Pose::look_at(
+            Vec3::new(1.0, 2.0, 15.0),
+            Vec3::new(1.5, 2.0, 0.0),
+            Vec3::y(),
+        )
+        .unwrap();
+        let cam = Camera {
+            intrinsics: intr,
+            distortion: RadialDistortion::default(),
+            pose,
+        };
+        let f = frame(FrameMapping::Pinhole {
+            intrinsics: intr,
+            distortion: RadialDistortion::default(),
+            rotation: mat3_to_rows(&pose.rotation),
+        });
+        let pm = PreparedMapping::new(&f).unwrap();
+        let src: Vec<Vec2> = [(0.0, 0.0), (639.0, 0.0), (639.0, 479.0), (0.0, 479.0)]
+            .iter()
+            .map(|&(x, y)| Vec2::new(x, y))
+            .collect();
+        let dst: Vec<Vec2> = src
+            .iter()
+            .map(|p| cam.pixel_to_plane(*p).unwrap())
+            .collect();
+        let h = Homography::from_correspondences(&src, &dst).unwrap();
+        let hf = frame(FrameMapping::Homographies {
+            subframes: vec![SubFrame {
+                rect: [-0.5, -0.5, 639.5, 479.5],
+                plane_from_pixel: mat3_to_rows(&h.0),
+            }],
+        });
+        let hm = PreparedMapping::new(&hf).unwrap();
+        for &(x, y) in &[(10.0, 20.0), (320.0, 240.0), (600.0, 400.0)] {
+            let p = Vec2::new(x, y);
+            let a = pm.pixel_to_plane(p).unwrap();
+            let b = hm.pixel_to_plane(p).unwrap();
+            assert!((a - b).norm() < 1e-6);
+            let back = hm.plane_to_pixel(b).unwrap();
+            assert!((back - p).norm() < 1e-6);
+            let back = pm.plane_to_pixel(a).unwrap();
+            assert!((back - p).norm() < 1e-6);
+        }
+        assert!(hm.plane_to_pixel(Vec2::new(100.0, 100.0)).is_none());
+    }
+
+    #[test]
+    fn validation_names_the_problem() {
+        let mut cap = RegisteredCapture::new("test", Region::centred(4.0, 4.0), 10.0);
+        cap.sources.push(Source {
+            kind: SourceKind::Video,
+            path: "v.mp4".into(),
+            encoding: Encoding::Srgb,
+            stream: 0,
+        });
+        let mut f = frame(FrameMapping::Homographies { subframes: vec![] });
+        f.light_position[2] = -1.0;
+        cap.frames.push(f);
+        let err = cap
+            .validate(Path::new("capture.json"))
+            .unwrap_err()
+            .to_string();
+        assert!(err.contains("light z -1"), "{err}");
+    }
+}

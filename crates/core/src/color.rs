@@ -1,0 +1,85 @@
+//! Colour transfer functions. All fitting and rendering happens in linear RGB with the
+//! sRGB / Rec.709 primaries; only 8-bit video frames, JPEG photos and colour PNG maps
+//! carry the sRGB transfer curve.
+
+/// sRGB-encoded value in [0, 1] to linear.
+#[inline]
+pub fn srgb_to_linear(v: f64) -> f64 {
+    if v <= 0.04045 {
+        v / 12.92
+    } else {
+        ((v + 0.055) / 1.055).powf(2.4)
+    }
+}
+
+/// Linear value to sRGB encoding; input is clamped to [0, 1].
+#[inline]
+pub fn linear_to_srgb(v: f64) -> f64 {
+    let v = if v.is_finite() {
+        v.clamp(0.0, 1.0)
+    } else {
+        0.0
+    };
+    if v <= 0.003_130_8 {
+        12.92 * v
+    } else {
+        1.055 * v.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// Linear value to an 8-bit sRGB code value (rounded, clamped).
+#[inline]
+pub fn linear_to_srgb8(v: f64) -> u8 {
+    (linear_to_srgb(v) * 255.0).round() as u8
+}
+
+/// Lookup table from 8-bit sRGB code values to linear values.
+pub fn srgb8_to_linear_table() -> [f32; 256] {
+    let mut t = [0f32; 256];
+    for (i, v) in t.iter_mut().enumerate() {
+        *v = srgb_to_linear(i as f64 / 255.0) as f32;
+    }
+    t
+}
+
+/// Linear sRGB to CIE 1976 L*a*b* (D65 white).
+pub fn linear_rgb_to_lab(rgb: [f64; 3]) -> [f64; 3] {
+    let [r, g, b] = rgb;
+    let x = 0.412_456_4 * r + 0.357_576_1 * g + 0.180_437_5 * b;
+    let y = 0.212_672_9 * r + 0.715_152_2 * g + 0.072_175_0 * b;
+    let z = 0.019_333_9 * r + 0.119_192_0 * g + 0.950_304_1 * b;
+    let f = |t: f64| {
+        let d: f64 = 6.0 / 29.0;
+        if t > d * d * d {
+            t.cbrt()
+        } else {
+            t / (3.0 * d * d) + 4.0 / 29.0
+        }
+    };
+    let (fx, fy, fz) = (f(x / 0.950_47), f(y), f(z / 1.088_83));
+    [116.0 * fy - 16.0, 500.0 * (fx - fy), 200.0 * (fy - fz)]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn srgb_round_trip_and_known_values() {
+        for i in 0..=255u32 {
+            let v = f64::from(i) / 255.0;
+            assert!((linear_to_srgb(srgb_to_linear(v)) - v).abs() < 1e-12);
+        }
+        assert!((srgb_to_linear(0.5) - 0.214_041).abs() < 1e-5);
+        assert_eq!(linear_to_srgb8(1.0), 255);
+        assert_eq!(linear_to_srgb8(f64::NAN), 0);
+    }
+
+    #[test]
+    fn lab_of_white_and_black() {
+        let w = linear_rgb_to_lab([1.0, 1.0, 1.0]);
+        assert!((w[0] - 100.0).abs() < 0.01 && w[1].abs() < 0.01 && w[2].abs() < 0.01);
+        let k = linear_rgb_to_lab([0.0, 0.0, 0.0]);
+        assert!(k[0].abs() < 1e-9);
+    }
+}

@@ -1,0 +1,108 @@
+//! A minimal interleaved image type, our own so that no stage depends on OpenCV's.
+
+/// Interleaved image: `data[(row * width + col) * channels + c]`.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Image<T> {
+    /// Columns.
+    pub width: usize,
+    /// Rows.
+    pub height: usize,
+    /// Channels per pixel.
+    pub channels: usize,
+    /// Samples, row-major, interleaved.
+    pub data: Vec<T>,
+}
+
+/// Floating-point image (linear unless stated otherwise).
+pub type ImageF32 = Image<f32>;
+/// 8-bit image (sRGB-encoded unless stated otherwise).
+pub type ImageU8 = Image<u8>;
+
+impl<T: Copy + Default> Image<T> {
+    /// A zero-filled image.
+    pub fn new(width: usize, height: usize, channels: usize) -> Self {
+        Self {
+            width,
+            height,
+            channels,
+            data: vec![T::default(); width * height * channels],
+        }
+    }
+
+    /// Wrap existing samples; `None` if the length does not match.
+    pub fn from_vec(width: usize, height: usize, channels: usize, data: Vec<T>) -> Option<Self> {
+        (data.len() == width * height * channels).then_some(Self {
+            width,
+            height,
+            channels,
+            data,
+        })
+    }
+
+    /// The samples of one pixel.
+    #[inline]
+    pub fn pixel(&self, col: usize, row: usize) -> &[T] {
+        let i = (row * self.width + col) * self.channels;
+        &self.data[i..i + self.channels]
+    }
+
+    /// The samples of one pixel, mutable.
+    #[inline]
+    pub fn pixel_mut(&mut self, col: usize, row: usize) -> &mut [T] {
+        let i = (row * self.width + col) * self.channels;
+        &mut self.data[i..i + self.channels]
+    }
+
+    /// One row of samples.
+    pub fn row(&self, row: usize) -> &[T] {
+        let n = self.width * self.channels;
+        &self.data[row * n..(row + 1) * n]
+    }
+}
+
+impl ImageF32 {
+    /// Bilinear sample at continuous pixel coordinates (centres at integers), clamped at
+    /// the border. Writes `channels` values into `out`.
+    pub fn sample_bilinear(&self, x: f64, y: f64, out: &mut [f32]) {
+        let xm = (self.width as f64 - 1.0).max(0.0);
+        let ym = (self.height as f64 - 1.0).max(0.0);
+        let x = if x.is_finite() { x.clamp(0.0, xm) } else { 0.0 };
+        let y = if y.is_finite() { y.clamp(0.0, ym) } else { 0.0 };
+        let x0 = x.floor() as usize;
+        let y0 = y.floor() as usize;
+        let x1 = (x0 + 1).min(self.width - 1);
+        let y1 = (y0 + 1).min(self.height - 1);
+        let fx = (x - x0 as f64) as f32;
+        let fy = (y - y0 as f64) as f32;
+        let (a, b, c, d) = (
+            self.pixel(x0, y0),
+            self.pixel(x1, y0),
+            self.pixel(x0, y1),
+            self.pixel(x1, y1),
+        );
+        for (k, o) in out.iter_mut().enumerate().take(self.channels) {
+            let top = a[k] + (b[k] - a[k]) * fx;
+            let bot = c[k] + (d[k] - c[k]) * fx;
+            *o = top + (bot - top) * fy;
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bilinear_hits_pixel_centres_and_midpoints() {
+        let img = ImageF32::from_vec(2, 2, 1, vec![0.0, 1.0, 2.0, 3.0]).unwrap();
+        let mut o = [0f32];
+        img.sample_bilinear(0.0, 0.0, &mut o);
+        assert_eq!(o[0], 0.0);
+        img.sample_bilinear(0.5, 0.5, &mut o);
+        assert!((o[0] - 1.5).abs() < 1e-6);
+        img.sample_bilinear(10.0, -3.0, &mut o);
+        assert_eq!(o[0], 1.0);
+        img.sample_bilinear(f64::NAN, 0.0, &mut o);
+        assert!(o[0].is_finite());
+    }
+}
