@@ -1,1 +1,177 @@
-//! placeholder
+//! # svbrdf-cv
+//!
+//! The only crate of `svbrdf` that links OpenCV. Everything crossing its boundary is
+//! one of our own types ([`svbrdf_core::image::ImageU8`], plain corner arrays), so the
+//! rest of the code base never sees a `Mat`.
+//!
+//! Images exchanged here are 8-bit RGB (channel order R, G, B), sRGB-encoded as
+//! cameras and video codecs store them.
+#![deny(missing_docs)]
+
+pub mod aruco;
+pub mod video;
+
+use std::path::{Path, PathBuf};
+
+use opencv::core::{Mat, Vec3b};
+use opencv::prelude::*;
+use svbrdf_core::image::ImageU8;
+
+/// Errors of the OpenCV edge.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum CvError {
+    /// OpenCV reported an error.
+    #[error("{context}: OpenCV: {source}")]
+    OpenCv {
+        /// What we were doing.
+        context: String,
+        /// OpenCV's error.
+        source: opencv::Error,
+    },
+    /// A file could not be opened or written.
+    #[error("{path}: {message}")]
+    File {
+        /// The file.
+        path: PathBuf,
+        /// What went wrong.
+        message: String,
+    },
+    /// A value outside its accepted range.
+    #[error("invalid {what} {value} (expected {expected})")]
+    Invalid {
+        /// Which value.
+        what: String,
+        /// The value given.
+        value: String,
+        /// The accepted range.
+        expected: String,
+    },
+}
+
+pub(crate) trait Context<T> {
+    fn ctx(self, what: impl FnOnce() -> String) -> Result<T, CvError>;
+}
+
+impl<T> Context<T> for opencv::Result<T> {
+    fn ctx(self, what: impl FnOnce() -> String) -> Result<T, CvError> {
+        self.map_err(|source| CvError::OpenCv {
+            context: what(),
+            source,
+        })
+    }
+}
+
+/// Use one OpenCV thread: we parallelise across frames with rayon instead, which scales
+/// better for SIFT and detection on small images.
+pub fn set_single_threaded() -> Result<(), CvError> {
+    opencv::core::set_num_threads(1).ctx(|| "setting OpenCV threads".into())
+}
+
+/// Convert our RGB image to an OpenCV BGR `Mat`.
+pub(crate) fn rgb_to_mat(img: &ImageU8) -> Result<Mat, CvError> {
+    if img.channels != 3 {
+        return Err(CvError::Invalid {
+            what: "channel count".into(),
+            value: img.channels.to_string(),
+            expected: "3 (RGB)".into(),
+        });
+    }
+    let rows = i32::try_from(img.height).map_err(|_| too_big(img))?;
+    let cols = i32::try_from(img.width).map_err(|_| too_big(img))?;
+    let mut mat = Mat::new_rows_cols_with_default(rows, cols, opencv::core::CV_8UC3, 0.into())
+        .ctx(|| "allocating image".into())?;
+    for r in 0..img.height {
+        let src = img.row(r);
+        let dst = mat
+            .at_row_mut::<Vec3b>(r as i32)
+            .ctx(|| "writing image row".into())?;
+        for (d, s) in dst.iter_mut().zip(src.chunks_exact(3)) {
+            *d = Vec3b::from([s[2], s[1], s[0]]);
+        }
+    }
+    Ok(mat)
+}
+
+fn too_big(img: &ImageU8) -> CvError {
+    CvError::Invalid {
+        what: "image size".into(),
+        value: format!("{}x{}", img.width, img.height),
+        expected: "sides below 2^31".into(),
+    }
+}
+
+/// Convert an OpenCV BGR (or grey) `Mat` to our RGB image.
+pub(crate) fn mat_to_rgb(mat: &Mat) -> Result<ImageU8, CvError> {
+    let mut bgr = Mat::default();
+    let src = match mat.channels() {
+        3 => mat,
+        1 => {
+            opencv::imgproc::cvt_color_def(mat, &mut bgr, opencv::imgproc::COLOR_GRAY2BGR)
+                .ctx(|| "converting grey to colour".into())?;
+            &bgr
+        }
+        4 => {
+            opencv::imgproc::cvt_color_def(mat, &mut bgr, opencv::imgproc::COLOR_BGRA2BGR)
+                .ctx(|| "dropping alpha".into())?;
+            &bgr
+        }
+        n => {
+            return Err(CvError::Invalid {
+                what: "channel count".into(),
+                value: n.to_string(),
+                expected: "1, 3 or 4".into(),
+            })
+        }
+    };
+    if src.depth() != opencv::core::CV_8U {
+        return Err(CvError::Invalid {
+            what: "sample depth".into(),
+            value: src.depth().to_string(),
+            expected: "8-bit unsigned".into(),
+        });
+    }
+    let (w, h) = (src.cols() as usize, src.rows() as usize);
+    let mut out = ImageU8::new(w, h, 3);
+    for r in 0..h {
+        let row = src
+            .at_row::<Vec3b>(r as i32)
+            .ctx(|| "reading image row".into())?;
+        for (c, p) in row.iter().enumerate() {
+            out.pixel_mut(c, r).copy_from_slice(&[p[2], p[1], p[0]]);
+        }
+    }
+    Ok(out)
+}
+
+/// Read a photo (JPEG, PNG, ...) as 8-bit RGB, applying its EXIF orientation.
+pub fn read_image(path: &Path) -> Result<ImageU8, CvError> {
+    let name = path.to_string_lossy();
+    let mat = opencv::imgcodecs::imread(path, opencv::imgcodecs::IMREAD_COLOR)
+        .ctx(|| format!("reading {name}"))?;
+    if mat.empty() {
+        return Err(CvError::File {
+            path: path.into(),
+            message: "cannot read or decode this image".into(),
+        });
+    }
+    mat_to_rgb(&mat)
+}
+
+/// Write an 8-bit RGB image as JPEG with the given quality (1-100).
+pub fn write_jpeg(path: &Path, img: &ImageU8, quality: i32) -> Result<(), CvError> {
+    let mat = rgb_to_mat(img)?;
+    let name = path.to_string_lossy();
+    let params = opencv::core::Vector::<i32>::from_slice(&[
+        opencv::imgcodecs::IMWRITE_JPEG_QUALITY,
+        quality.clamp(1, 100),
+    ]);
+    let ok = opencv::imgcodecs::imwrite(path, &mat, &params).ctx(|| format!("writing {name}"))?;
+    if !ok {
+        return Err(CvError::File {
+            path: path.into(),
+            message: "OpenCV could not write this JPEG".into(),
+        });
+    }
+    Ok(())
+}

@@ -1,1 +1,773 @@
-//! placeholder
+//! # svbrdf-synth
+//!
+//! Renders complete phone captures of known flat materials, as the paper's users
+//! record them, with exact ground truth: a reference photo with four ArUco markers,
+//! a hand-held flash video (H.264 in MP4), optionally a second no-flash camera, the
+//! svBRDF maps, per-frame cameras and flash positions, held-out relighting images, and
+//! the same truth as a registered capture so fitting can be measured with perfect poses.
+//!
+//! Output folder layout (see `docs/ARCHITECTURE.md`):
+//! ```text
+//! OUT/reference.jpg            reference photo (sRGB JPEG)
+//! OUT/flash.mp4                flash video (H.264, sRGB)
+//! OUT/second.mp4               second camera (optional)
+//! OUT/camera.json              the phone description that `align` takes
+//! OUT/ground_truth/truth.json  cameras, lights, markers, settings
+//! OUT/ground_truth/maps/*.exr  linear maps (+ PNG previews)
+//! OUT/ground_truth/holdout/*   held-out relighting (linear EXR + sRGB PNG)
+//! OUT/registered/capture.json  ground truth as a registered capture
+//! ```
+#![deny(missing_docs)]
+
+pub mod config;
+pub mod material;
+mod noise;
+pub mod render;
+pub mod scene;
+pub mod trajectory;
+pub mod truth;
+
+use std::path::{Path, PathBuf};
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use svbrdf_core::brdf::{BrdfModel, LightView, Prepared, Ward};
+use svbrdf_core::capture::{Frame, FrameMapping, RegisteredCapture, Source, SourceKind};
+use svbrdf_core::fsutil::{write_json, StagingDir};
+use svbrdf_core::geometry::{
+    mat3_to_rows, rot_x, Camera, Intrinsics, Mat3, Pose, RadialDistortion, Vec2, Vec3,
+};
+use svbrdf_core::image::ImageF32;
+use svbrdf_core::maps::{write_exr, write_png, Encoding, PngDepth};
+use svbrdf_core::plane::{PlaneGrid, Region};
+use svbrdf_core::CoreError;
+use svbrdf_cv::aruco::{marker_pattern, Dictionary};
+use svbrdf_cv::video::VideoWriter;
+use svbrdf_cv::CvError;
+
+pub use config::{MaterialSource, SynthConfig};
+use material::MaterialMaps;
+use render::{expose, render_linear, Exposure, Lighting};
+use scene::Scene;
+use trajectory::Sweep;
+use truth::*;
+
+/// Errors of the simulator.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SynthError {
+    /// A setting outside its range.
+    #[error("invalid {what} {value} (expected {expected})")]
+    Invalid {
+        /// Which setting.
+        what: String,
+        /// The value given.
+        value: String,
+        /// Accepted range, with units.
+        expected: String,
+    },
+    /// From the core (files, geometry).
+    #[error(transparent)]
+    Core(#[from] CoreError),
+    /// From OpenCV (markers, video).
+    #[error(transparent)]
+    Cv(#[from] CvError),
+}
+
+impl SynthError {
+    /// An out-of-range setting.
+    pub fn invalid(
+        what: impl Into<String>,
+        value: impl ToString,
+        expected: impl Into<String>,
+    ) -> Self {
+        Self::Invalid {
+            what: what.into(),
+            value: value.to_string(),
+            expected: expected.into(),
+        }
+    }
+}
+
+/// Progress reports from long stages; the binary turns them into progress bars.
+pub trait Progress: Sync {
+    /// A stage with `total` steps begins.
+    fn stage(&self, name: &str, total: u64);
+    /// `n` more steps are done.
+    fn advance(&self, n: u64);
+    /// The current stage is done.
+    fn finish(&self);
+}
+
+/// Progress reporting that does nothing.
+pub struct NoProgress;
+
+impl Progress for NoProgress {
+    fn stage(&self, _: &str, _: u64) {}
+    fn advance(&self, _: u64) {}
+    fn finish(&self) {}
+}
+
+/// The phone description `svbrdf align` reads (`camera.json`), measured once per phone.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CameraDescription {
+    /// Field of view across the longer image side, degrees.
+    pub fov_deg: f64,
+    /// Flash position in the camera frame (x right, y down, z forward), cm.
+    pub flash_offset_cm: [f64; 3],
+    /// Side of the black marker square, cm.
+    pub marker_size_cm: f64,
+    /// OpenCV marker dictionary name.
+    pub marker_dictionary: String,
+    /// Keep every n-th video frame.
+    pub frame_step: u32,
+}
+
+/// What `synthesize` wrote.
+#[derive(Debug, Clone)]
+pub struct SynthSummary {
+    /// The output folder.
+    pub out: PathBuf,
+    /// Files written, relative to `out`.
+    pub files: Vec<String>,
+    /// Frames in the flash video.
+    pub frames: u64,
+    /// Frames in which at least one marker is fully visible.
+    pub frames_with_markers: u64,
+    /// Motion-blurred frames.
+    pub blurred_frames: u64,
+    /// Frames of the second camera, if any.
+    pub second_frames: Option<u64>,
+}
+
+fn cam_truth(c: &Camera) -> CameraTruth {
+    CameraTruth {
+        intrinsics: c.intrinsics,
+        distortion: c.distortion,
+        rotation: mat3_to_rows(&c.pose.rotation),
+        position: c.pose.centre.into(),
+    }
+}
+
+fn visible_markers(cam: &Camera, scene: &Scene) -> Vec<i32> {
+    scene
+        .markers
+        .iter()
+        .filter(|m| {
+            m.corners.iter().all(|c| {
+                cam.project(Vec3::from(*c))
+                    .is_some_and(|p| cam.intrinsics.contains(p))
+            })
+        })
+        .map(|m| m.id)
+        .collect()
+}
+
+/// Render a complete capture into `out` (which must not exist unless `overwrite`).
+/// Everything is written into a temporary sibling folder that is renamed at the end,
+/// so an interrupted run never leaves a folder that looks complete.
+pub fn synthesize(
+    cfg: &SynthConfig,
+    out: &Path,
+    overwrite: bool,
+    progress: &dyn Progress,
+) -> Result<SynthSummary, SynthError> {
+    cfg.validate()?;
+    let staging = StagingDir::new(out, overwrite)?;
+    let dir = staging.path().to_path_buf();
+    let mut files = Vec::new();
+    let region = Region::centred(cfg.region_cm[0], cfg.region_cm[1]);
+    let dict = Dictionary::from_name(&cfg.markers.dictionary)?;
+
+    // Material, rasterised over the region and the markers' surroundings.
+    progress.stage("material", 1);
+    let margin = cfg.markers.size_cm + cfg.markers.paper_margin_cm + 2.0;
+    let grid = PlaneGrid::new(region.expanded(margin), cfg.map_px_per_cm)?;
+    let material = match &cfg.material {
+        MaterialSource::Procedural(name) => {
+            MaterialMaps::procedural(name, grid, cfg.feature_cm, cfg.seed)?
+        }
+        MaterialSource::Maps(path) => MaterialMaps::from_folder(path, grid, region)?,
+    };
+    let patterns = cfg
+        .markers
+        .ids
+        .iter()
+        .map(|&id| marker_pattern(dict, id).map(|p| (id, p.cells, p.white)))
+        .collect::<Result<Vec<_>, _>>()?;
+    let scene = Scene::new(
+        material,
+        region,
+        patterns,
+        cfg.markers.size_cm,
+        cfg.markers.paper_margin_cm,
+        cfg.seed,
+    );
+    progress.finish();
+
+    // Ground-truth maps.
+    progress.stage("ground-truth maps", 1);
+    let gt_dir = dir.join("ground_truth");
+    let maps = write_truth_maps(&scene, region, cfg.map_px_per_cm, &gt_dir.join("maps"))?;
+    files.push("ground_truth/maps/".into());
+    progress.finish();
+
+    // Reference photo: levelled (or tilted by `tilt_deg`) above the origin, room light.
+    progress.stage("reference photo", 1);
+    let r = &cfg.reference;
+    let down = Mat3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0);
+    let ref_cam = Camera {
+        intrinsics: Intrinsics::from_fov(r.width, r.height, r.fov_deg)?,
+        distortion: RadialDistortion::default(),
+        pose: Pose {
+            rotation: rot_x(r.tilt_deg.to_radians()) * down,
+            centre: Vec3::new(0.0, 0.0, r.distance_cm),
+        },
+    };
+    let ref_lin = render_linear(
+        &scene,
+        &[Exposure {
+            camera: ref_cam,
+            light: None,
+            first_lit_row: 0,
+        }],
+        Lighting {
+            intensity: 0.0,
+            ambient: cfg.light.reference_ambient,
+        },
+        r.supersample,
+    );
+    let ref_img = expose(
+        &ref_lin,
+        cfg.light.shot_noise,
+        cfg.light.read_noise,
+        cfg.seed,
+        u64::MAX,
+    );
+    svbrdf_cv::write_jpeg(&dir.join("reference.jpg"), &ref_img, r.jpeg_quality)?;
+    files.push("reference.jpg".into());
+    let marker_corners_px = scene
+        .markers
+        .iter()
+        .map(|m| {
+            let c = m.corners.map(|c| {
+                let p = ref_cam.project(Vec3::from(c)).unwrap_or_else(Vec2::zeros);
+                [p.x, p.y]
+            });
+            (m.id, c)
+        })
+        .collect();
+    progress.finish();
+
+    // Flash video.
+    let v = &cfg.video;
+    let n_frames = (v.fps * v.duration_s).round().max(1.0) as u64;
+    let sweep = Sweep::new(
+        &cfg.sweep,
+        v,
+        0.5 * cfg.region_cm[0],
+        0.5 * cfg.region_cm[1],
+        cfg.seed,
+    );
+    let base_intr = Intrinsics::from_fov(v.width, v.height, v.fov_deg)?;
+    let flash_offset = Vec3::from(cfg.light.flash_offset_cm);
+    let camera_at = |t: f64| {
+        let s = sweep.at(t);
+        let mut intr = base_intr;
+        intr.fx *= s.focal_scale;
+        intr.fy *= s.focal_scale;
+        Camera {
+            intrinsics: intr,
+            distortion: RadialDistortion { k1: s.k1, k2: v.k2 },
+            pose: s.pose,
+        }
+    };
+    let lighting = Lighting {
+        intensity: cfg.light.flash_intensity,
+        ambient: cfg.light.ambient,
+    };
+    let mut blur_rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0xB1B1);
+    let mut writer = VideoWriter::create(&dir.join("flash.mp4"), v.fps, v.width, v.height)?;
+    let mut flash_frames = Vec::with_capacity(n_frames as usize);
+    progress.stage("flash video", n_frames);
+    for i in 0..n_frames {
+        let t = i as f64 / v.fps;
+        let cam = camera_at(t);
+        let blurred = blur_rng.random_bool(cfg.sweep.motion_blur_probability);
+        let exposures: Vec<Exposure> = if blurred {
+            let jerk = sweep.jerk(t);
+            (0..6)
+                .map(|k| {
+                    let f = k as f64 / 5.0 - 0.5;
+                    let mut c = camera_at(t + f / v.fps);
+                    c.pose.centre += jerk * f;
+                    Exposure {
+                        camera: c,
+                        light: Some(c.pose.camera_to_world(flash_offset)),
+                        first_lit_row: 0,
+                    }
+                })
+                .collect()
+        } else {
+            vec![Exposure {
+                camera: cam,
+                light: Some(cam.pose.camera_to_world(flash_offset)),
+                first_lit_row: 0,
+            }]
+        };
+        let lin = render_linear(&scene, &exposures, lighting, 1);
+        writer.write(&expose(
+            &lin,
+            cfg.light.shot_noise,
+            cfg.light.read_noise,
+            cfg.seed,
+            i,
+        ))?;
+        flash_frames.push(FrameTruth {
+            index: i,
+            time_s: t,
+            camera: cam_truth(&cam),
+            light_position: Some(cam.pose.camera_to_world(flash_offset).into()),
+            first_lit_row: None,
+            motion_blur: blurred,
+            markers_visible: visible_markers(&cam, &scene),
+        });
+        progress.advance(1);
+    }
+    let written = writer.finish()?;
+    progress.finish();
+    files.push("flash.mp4".into());
+    let mut streams = vec![StreamTruth {
+        file: "flash.mp4".into(),
+        flash: true,
+        fps: v.fps,
+        width: v.width,
+        height: v.height,
+        start_time_s: 0.0,
+        flash_onset_frame: Some(0),
+        frames: flash_frames,
+    }];
+
+    // Optional second, no-flash camera.
+    if let Some(sc) = &cfg.second_camera {
+        streams.push(render_second_camera(
+            cfg,
+            sc,
+            &scene,
+            &camera_at,
+            flash_offset,
+            lighting,
+            &dir,
+            progress,
+        )?);
+        files.push("second.mp4".into());
+    }
+
+    // Held-out relighting, rectified to the map grid.
+    let holdout = render_holdout(cfg, &scene, region, &gt_dir.join("holdout"), progress)?;
+    files.push("ground_truth/holdout/".into());
+
+    // Camera description, truth, registered capture.
+    let camdesc = CameraDescription {
+        fov_deg: v.fov_deg,
+        flash_offset_cm: cfg.light.flash_offset_cm,
+        marker_size_cm: cfg.markers.size_cm,
+        marker_dictionary: cfg.markers.dictionary.clone(),
+        frame_step: cfg.frame_step,
+    };
+    write_json(&dir.join("camera.json"), &camdesc)?;
+    files.push("camera.json".into());
+    let truth = GroundTruth {
+        format: TRUTH_FORMAT.into(),
+        version: 1,
+        units: "cm".into(),
+        config: cfg.clone(),
+        region,
+        light_intensity: cfg.light.flash_intensity,
+        ambient: cfg.light.ambient,
+        markers: scene
+            .markers
+            .iter()
+            .map(|m| MarkerTruth {
+                id: m.id,
+                corners_cm: m.corners,
+            })
+            .collect(),
+        reference: ReferenceTruth {
+            file: "reference.jpg".into(),
+            camera: cam_truth(&ref_cam),
+            marker_corners_px,
+        },
+        streams,
+        maps,
+        holdout,
+    };
+    write_json(&gt_dir.join("truth.json"), &truth)?;
+    files.push("ground_truth/truth.json".into());
+    let capture = registered_from_truth(&truth, cfg);
+    let reg_dir = dir.join("registered");
+    std::fs::create_dir_all(&reg_dir).map_err(|e| CoreError::io(&reg_dir, e))?;
+    capture.save(&reg_dir)?;
+    files.push("registered/capture.json".into());
+
+    let summary = SynthSummary {
+        out: staging.commit()?,
+        files,
+        frames: written,
+        frames_with_markers: truth.streams[0]
+            .frames
+            .iter()
+            .filter(|f| !f.markers_visible.is_empty())
+            .count() as u64,
+        blurred_frames: truth.streams[0]
+            .frames
+            .iter()
+            .filter(|f| f.motion_blur)
+            .count() as u64,
+        second_frames: truth.streams.get(1).map(|s| s.frames.len() as u64),
+    };
+    Ok(summary)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn render_second_camera(
+    cfg: &SynthConfig,
+    sc: &config::SecondCameraSpec,
+    scene: &Scene,
+    flash_camera_at: &dyn Fn(f64) -> Camera,
+    flash_offset: Vec3,
+    lighting: Lighting,
+    dir: &Path,
+    progress: &dyn Progress,
+) -> Result<StreamTruth, SynthError> {
+    let v = &cfg.video;
+    let intr = Intrinsics::from_fov(sc.width, sc.height, sc.fov_deg)?;
+    // It starts `lead_s` early and stops a little before the flash camera, as the paper requires.
+    let length = sc.lead_s + v.duration_s - 2.0 / v.fps;
+    let n = (length * sc.fps).floor().max(1.0) as u64;
+    let (az, el) = (
+        sc.azimuth_deg.to_radians(),
+        (90.0 - sc.oblique_deg).to_radians(),
+    );
+    let base = Vec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin()) * sc.distance_cm;
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x2CA3);
+    let (p1, p2) = (rng.random_range(0.0..6.28), rng.random_range(0.0..6.28));
+    let mut writer = VideoWriter::create(&dir.join("second.mp4"), sc.fps, sc.width, sc.height)?;
+    let mut frames = Vec::with_capacity(n as usize);
+    let mut onset = None;
+    progress.stage("second camera", n);
+    for j in 0..n {
+        let t2 = j as f64 / sc.fps;
+        let t = t2 - sc.lead_s; // flash camera clock
+        let wob = Vec3::new((0.7 * t2 + p1).sin(), (0.5 * t2 + p2).sin(), 0.0) * 0.6;
+        let pose = Pose::look_at(base + wob, wob * 0.5, Vec3::z())?;
+        let cam = Camera {
+            intrinsics: intr,
+            distortion: RadialDistortion { k1: -0.04, k2: 0.0 },
+            pose,
+        };
+        // Rolling shutter: row r is read at t + r/H * readout.
+        let h = f64::from(sc.height);
+        let first_lit = if t >= 0.0 {
+            Some(0usize)
+        } else if t + sc.readout_s >= 0.0 {
+            Some(((-t / sc.readout_s) * h).ceil() as usize)
+        } else {
+            None
+        };
+        let light = first_lit.map(|_| {
+            flash_camera_at(t.max(0.0))
+                .pose
+                .camera_to_world(flash_offset)
+        });
+        if onset.is_none() && first_lit.is_some_and(|r| r < sc.height as usize) {
+            onset = Some(j);
+        }
+        let e = Exposure {
+            camera: cam,
+            light,
+            first_lit_row: first_lit.unwrap_or(usize::MAX),
+        };
+        let lin = render_linear(scene, &[e], lighting, 1);
+        writer.write(&expose(
+            &lin,
+            cfg.light.shot_noise,
+            cfg.light.read_noise,
+            cfg.seed ^ 0x2222,
+            j,
+        ))?;
+        frames.push(FrameTruth {
+            index: j,
+            time_s: t,
+            camera: cam_truth(&cam),
+            light_position: light.map(Into::into),
+            first_lit_row: first_lit.map(|r| r.min(sc.height as usize) as u32),
+            motion_blur: false,
+            markers_visible: visible_markers(&cam, scene),
+        });
+        progress.advance(1);
+    }
+    writer.finish()?;
+    progress.finish();
+    Ok(StreamTruth {
+        file: "second.mp4".into(),
+        flash: false,
+        fps: sc.fps,
+        width: sc.width,
+        height: sc.height,
+        start_time_s: -sc.lead_s,
+        flash_onset_frame: onset,
+        frames,
+    })
+}
+
+fn write_truth_maps(
+    scene: &Scene,
+    region: Region,
+    px_per_cm: f64,
+    dir: &Path,
+) -> Result<MapFiles, SynthError> {
+    let m = scene.material.crop(region)?;
+    let grid = m.grid;
+    let mut rough3 = ImageF32::new(grid.width, grid.height, 3);
+    let mut normal01 = ImageF32::new(grid.width, grid.height, 3);
+    let mut mask = ImageF32::new(grid.width, grid.height, 1);
+    let rough_max = m
+        .roughness
+        .data
+        .iter()
+        .fold(0f32, |a, b| a.max(*b))
+        .max(1e-6);
+    for r in 0..grid.height {
+        for c in 0..grid.width {
+            let a = m.roughness.pixel(c, r);
+            rough3.pixel_mut(c, r).copy_from_slice(&[a[0], a[1], 0.0]);
+            let n = m.normal.pixel(c, r);
+            normal01.pixel_mut(c, r).copy_from_slice(&[
+                n[0] * 0.5 + 0.5,
+                n[1] * 0.5 + 0.5,
+                n[2] * 0.5 + 0.5,
+            ]);
+            mask.pixel_mut(c, r)[0] =
+                f32::from(u8::from(scene.is_material(grid.pixel_centre(c, r))));
+        }
+    }
+    let base = |map: &str, enc: Encoding, extra: &str| -> Vec<(&'static str, String)> {
+        vec![
+            ("map", map.to_string()),
+            ("encoding", enc.as_str().to_string()),
+            ("units", extra.to_string()),
+            ("px_per_cm", px_per_cm.to_string()),
+            (
+                "region_cm",
+                format!(
+                    "{} {} {} {}",
+                    region.x_min, region.x_max, region.y_min, region.y_max
+                ),
+            ),
+            ("source", "svbrdf synth ground truth".to_string()),
+        ]
+    };
+    let rgb = ["R", "G", "B"];
+    write_exr(
+        &dir.join("diffuse.exr"),
+        &m.diffuse,
+        &rgb,
+        &base("diffuse_albedo", Encoding::Linear, "albedo, linear RGB"),
+    )?;
+    write_exr(
+        &dir.join("specular.exr"),
+        &m.specular,
+        &rgb,
+        &base("specular_albedo", Encoding::Linear, "albedo, linear RGB"),
+    )?;
+    write_exr(
+        &dir.join("roughness.exr"),
+        &rough3,
+        &rgb,
+        &base(
+            "roughness",
+            Encoding::Linear,
+            "R = alpha_x, G = alpha_y (Ward)",
+        ),
+    )?;
+    write_exr(
+        &dir.join("normal.exr"),
+        &m.normal,
+        &rgb,
+        &base(
+            "normal",
+            Encoding::Linear,
+            "tangent-space unit normal x y z, +y = plane +y (OpenGL)",
+        ),
+    )?;
+    write_exr(
+        &dir.join("mask.exr"),
+        &mask,
+        &["Y"],
+        &base(
+            "material_mask",
+            Encoding::Linear,
+            "1 = material, 0 = marker paper",
+        ),
+    )?;
+    // Previews: colours in sRGB, data maps linear.
+    write_png(
+        &dir.join("diffuse.png"),
+        &m.diffuse,
+        Encoding::Srgb,
+        PngDepth::Eight,
+        &base("diffuse_albedo", Encoding::Srgb, "albedo"),
+    )?;
+    write_png(
+        &dir.join("specular.png"),
+        &m.specular,
+        Encoding::Srgb,
+        PngDepth::Eight,
+        &base("specular_albedo", Encoding::Srgb, "albedo"),
+    )?;
+    let mut rough_vis = rough3.clone();
+    rough_vis.data.iter_mut().for_each(|v| *v /= rough_max);
+    write_png(
+        &dir.join("roughness.png"),
+        &rough_vis,
+        Encoding::Linear,
+        PngDepth::Sixteen,
+        &base(
+            "roughness",
+            Encoding::Linear,
+            &format!("alpha / {rough_max}"),
+        ),
+    )?;
+    write_png(
+        &dir.join("normal.png"),
+        &normal01,
+        Encoding::Linear,
+        PngDepth::Sixteen,
+        &base("normal", Encoding::Linear, "0.5 * n + 0.5, OpenGL (+y up)"),
+    )?;
+    Ok(MapFiles {
+        px_per_cm,
+        diffuse: "maps/diffuse.exr".into(),
+        specular: "maps/specular.exr".into(),
+        roughness: "maps/roughness.exr".into(),
+        normal: "maps/normal.exr".into(),
+        mask: "maps/mask.exr".into(),
+    })
+}
+
+fn render_holdout(
+    cfg: &SynthConfig,
+    scene: &Scene,
+    region: Region,
+    dir: &Path,
+    progress: &dyn Progress,
+) -> Result<Vec<HoldoutTruth>, SynthError> {
+    let grid = PlaneGrid::new(region, cfg.map_px_per_cm)?;
+    let cam = Vec3::from(cfg.holdout_camera_cm);
+    let mut out = Vec::new();
+    progress.stage("held-out relighting", cfg.holdout_lights_cm.len() as u64);
+    for (k, light) in cfg.holdout_lights_cm.iter().enumerate() {
+        let light_v = Vec3::from(*light);
+        let mut img = ImageF32::new(grid.width, grid.height, 3);
+        img.data
+            .par_chunks_mut(grid.width * 3)
+            .enumerate()
+            .for_each(|(r, line)| {
+                for c in 0..grid.width {
+                    let p = grid.pixel_centre(c, r);
+                    let (params, n) = scene.surface(p);
+                    let obs = LightView::from_points(Vec3::new(p.x, p.y, 0.0), light_v, cam);
+                    let l = Ward.radiance(
+                        &Prepared::from_normal(params, n),
+                        &obs,
+                        cfg.light.flash_intensity,
+                    );
+                    for ch in 0..3 {
+                        line[c * 3 + ch] = l[ch] as f32;
+                    }
+                }
+            });
+        let meta = vec![
+            ("map", "holdout_relighting".to_string()),
+            (
+                "light_position_cm",
+                format!("{} {} {}", light[0], light[1], light[2]),
+            ),
+            (
+                "camera_position_cm",
+                format!("{} {} {}", cam.x, cam.y, cam.z),
+            ),
+            (
+                "units",
+                "linear radiance, same scale as the video before sRGB encoding".to_string(),
+            ),
+        ];
+        let exr = format!("holdout/light_{k:02}.exr");
+        let png = format!("holdout/light_{k:02}.png");
+        write_exr(
+            &dir.join(format!("light_{k:02}.exr")),
+            &img,
+            &["R", "G", "B"],
+            &meta,
+        )?;
+        write_png(
+            &dir.join(format!("light_{k:02}.png")),
+            &img,
+            Encoding::Srgb,
+            PngDepth::Eight,
+            &meta,
+        )?;
+        out.push(HoldoutTruth {
+            exr,
+            png,
+            light_position: *light,
+            camera_position: cfg.holdout_camera_cm,
+        });
+        progress.advance(1);
+    }
+    progress.finish();
+    Ok(out)
+}
+
+/// The ground truth as a registered capture: every `frame_step`-th frame of each stream
+/// whose flash light is on, with its exact camera as a pinhole mapping.
+pub fn registered_from_truth(truth: &GroundTruth, cfg: &SynthConfig) -> RegisteredCapture {
+    let mut cap =
+        RegisteredCapture::new("svbrdf synth ground truth", truth.region, cfg.map_px_per_cm);
+    cap.light_intensity = Some([truth.light_intensity; 3]);
+    let mut id = 0;
+    for (s, stream) in truth.streams.iter().enumerate() {
+        cap.sources.push(Source {
+            kind: SourceKind::Video,
+            path: format!("../{}", stream.file),
+            encoding: Encoding::Srgb,
+            stream: s as u32,
+        });
+        for f in stream.frames.iter().step_by(cfg.frame_step as usize) {
+            let (Some(light), None | Some(0)) = (f.light_position, f.first_lit_row) else {
+                continue;
+            };
+            cap.frames.push(Frame {
+                id,
+                source: s,
+                frame_index: Some(f.index),
+                image: None,
+                time_s: Some(f.time_s),
+                width: stream.width,
+                height: stream.height,
+                mapping: FrameMapping::Pinhole {
+                    intrinsics: f.camera.intrinsics,
+                    distortion: f.camera.distortion,
+                    rotation: f.camera.rotation,
+                },
+                camera_position: f.camera.position,
+                light_position: light,
+            });
+            id += 1;
+        }
+    }
+    cap
+}

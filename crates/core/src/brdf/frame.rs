@@ -24,7 +24,18 @@ pub struct ShadingFrame {
 impl ShadingFrame {
     /// Frame for normal-offset angles in radians (|angle| < 90 degrees).
     pub fn new(theta_x: f64, theta_y: f64) -> Self {
-        let (a, b) = (theta_y.tan(), theta_x.tan());
+        Self::from_slopes(theta_y.tan(), theta_x.tan())
+    }
+
+    /// Frame of a unit normal with positive z (no trigonometry: for per-pixel use).
+    pub fn from_normal(n: Vec3) -> Self {
+        let z = n.z.max(1e-6);
+        Self::from_slopes(n.x / z, -n.y / z)
+    }
+
+    /// Frame from the slopes `a = tan(theta_y)`, `b = tan(theta_x)`; the unnormalised
+    /// normal is `(a, -b, 1)`.
+    pub fn from_slopes(a: f64, b: f64) -> Self {
         let raw = Vec3::new(a, -b, 1.0);
         let len = raw.norm();
         let n = raw / len;

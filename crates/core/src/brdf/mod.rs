@@ -129,6 +129,15 @@ pub struct Prepared {
 }
 
 impl Prepared {
+    /// Parameters with the normal given as a unit vector (renderers sample normal maps);
+    /// evaluation uses `frame`, so the angle fields of `params` are ignored.
+    pub fn from_normal(params: BrdfParams, n: Vec3) -> Self {
+        Self {
+            params,
+            frame: ShadingFrame::from_normal(n),
+        }
+    }
+
     /// Precompute the frame of `params`.
     pub fn new(params: BrdfParams) -> Self {
         Self {

@@ -210,3 +210,11 @@ fn normal_angles_round_trip() {
     let n = params(0.1, 0.1, 0.0, 0.2).normal();
     assert!(n.x > 0.0 && n.y.abs() < 1e-12);
 }
+
+#[test]
+fn frame_from_normal_matches_angles() {
+    let a = ShadingFrame::new(0.3, -0.4);
+    let b = ShadingFrame::from_normal(a.n);
+    assert!((a.n - b.n).norm() < 1e-12 && (a.t - b.t).norm() < 1e-12 && (a.b - b.b).norm() < 1e-12);
+    assert!(a.t.dot(&a.n).abs() < 1e-12 && (a.b - a.n.cross(&a.t)).norm() < 1e-12);
+}

@@ -1,0 +1,189 @@
+//! Video decoding and encoding through OpenCV's FFmpeg backend.
+//!
+//! Decoding is a stream: one frame in memory at a time. Frames come out upright
+//! (rotation metadata applied) as 8-bit sRGB-encoded RGB.
+
+use std::path::{Path, PathBuf};
+
+use opencv::core::{Mat, Size};
+use opencv::prelude::*;
+use opencv::videoio;
+use svbrdf_core::image::ImageU8;
+
+use crate::{mat_to_rgb, rgb_to_mat, Context, CvError};
+
+/// Stream properties reported by the container.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VideoInfo {
+    /// Width after rotation, pixels.
+    pub width: u32,
+    /// Height after rotation, pixels.
+    pub height: u32,
+    /// Frames per second.
+    pub fps: f64,
+    /// Frame count as the container states it (may be an estimate for some files).
+    pub frame_count: u64,
+}
+
+/// A streaming video decoder.
+pub struct VideoReader {
+    cap: videoio::VideoCapture,
+    path: PathBuf,
+    info: VideoInfo,
+    next_index: u64,
+    frame: Mat,
+}
+
+impl VideoReader {
+    /// Open a video file.
+    pub fn open(path: &Path) -> Result<Self, CvError> {
+        if !path.is_file() {
+            return Err(CvError::File {
+                path: path.into(),
+                message: "no such video file".into(),
+            });
+        }
+        let name = path.to_string_lossy().into_owned();
+        let mut cap = videoio::VideoCapture::from_file(&name, videoio::CAP_FFMPEG)
+            .ctx(|| format!("opening {name}"))?;
+        if !cap.is_opened().ctx(|| format!("opening {name}"))? {
+            return Err(CvError::File {
+                path: path.into(),
+                message: "OpenCV/FFmpeg cannot decode this video".into(),
+            });
+        }
+        // Phone videos are stored landscape with a rotation tag; we want upright frames.
+        let _ = cap.set(videoio::CAP_PROP_ORIENTATION_AUTO, 1.0);
+        let get = |cap: &videoio::VideoCapture, p: i32| {
+            cap.get(p).ctx(|| format!("reading properties of {name}"))
+        };
+        let mut w = get(&cap, videoio::CAP_PROP_FRAME_WIDTH)? as u32;
+        let mut h = get(&cap, videoio::CAP_PROP_FRAME_HEIGHT)? as u32;
+        let rot = get(&cap, videoio::CAP_PROP_ORIENTATION_META)
+            .unwrap_or(0.0)
+            .round() as i64;
+        if rot.rem_euclid(180) == 90 {
+            std::mem::swap(&mut w, &mut h);
+        }
+        let info = VideoInfo {
+            width: w,
+            height: h,
+            fps: get(&cap, videoio::CAP_PROP_FPS)?,
+            frame_count: get(&cap, videoio::CAP_PROP_FRAME_COUNT)?.max(0.0) as u64,
+        };
+        Ok(Self {
+            cap,
+            path: path.into(),
+            info,
+            next_index: 0,
+            frame: Mat::default(),
+        })
+    }
+
+    /// Stream properties.
+    pub fn info(&self) -> VideoInfo {
+        self.info
+    }
+
+    /// Index of the frame the next [`read`](Self::read) returns.
+    pub fn next_index(&self) -> u64 {
+        self.next_index
+    }
+
+    /// Decode and drop the next frame without converting it (for skipping).
+    pub fn skip(&mut self) -> Result<bool, CvError> {
+        let ok = self
+            .cap
+            .grab()
+            .ctx(|| format!("decoding {}", self.path.display()))?;
+        if ok {
+            self.next_index += 1;
+        }
+        Ok(ok)
+    }
+
+    /// The next frame, or `None` at the end of the stream.
+    pub fn read(&mut self) -> Result<Option<ImageU8>, CvError> {
+        let ok = self
+            .cap
+            .read(&mut self.frame)
+            .ctx(|| format!("decoding {}", self.path.display()))?;
+        if !ok || self.frame.empty() {
+            return Ok(None);
+        }
+        self.next_index += 1;
+        mat_to_rgb(&self.frame).map(Some)
+    }
+}
+
+/// An H.264 video encoder writing an `.mp4`.
+pub struct VideoWriter {
+    writer: videoio::VideoWriter,
+    path: PathBuf,
+    width: u32,
+    height: u32,
+    frames: u64,
+}
+
+impl VideoWriter {
+    /// Create `path` (H.264 in MP4, fourcc `avc1`).
+    pub fn create(path: &Path, fps: f64, width: u32, height: u32) -> Result<Self, CvError> {
+        if !(fps > 0.0 && fps.is_finite()) {
+            return Err(CvError::Invalid {
+                what: "frame rate".into(),
+                value: fps.to_string(),
+                expected: "frames per second > 0".into(),
+            });
+        }
+        let name = path.to_string_lossy().into_owned();
+        let fourcc = videoio::VideoWriter::fourcc('a', 'v', 'c', '1').ctx(|| "fourcc".into())?;
+        let size = Size::new(width as i32, height as i32);
+        let writer = videoio::VideoWriter::new_with_backend(
+            &name,
+            videoio::CAP_FFMPEG,
+            fourcc,
+            fps,
+            size,
+            true,
+        )
+        .ctx(|| format!("creating {name}"))?;
+        if !writer.is_opened().ctx(|| format!("creating {name}"))? {
+            return Err(CvError::File {
+                path: path.into(),
+                message: "OpenCV/FFmpeg cannot open an H.264 (avc1) writer for this file".into(),
+            });
+        }
+        Ok(Self {
+            writer,
+            path: path.into(),
+            width,
+            height,
+            frames: 0,
+        })
+    }
+
+    /// Append a frame (must match the size given at creation).
+    pub fn write(&mut self, img: &ImageU8) -> Result<(), CvError> {
+        if img.width != self.width as usize || img.height != self.height as usize {
+            return Err(CvError::Invalid {
+                what: "frame size".into(),
+                value: format!("{}x{}", img.width, img.height),
+                expected: format!("{}x{} as the video was created", self.width, self.height),
+            });
+        }
+        let mat = rgb_to_mat(img)?;
+        self.writer
+            .write(&mat)
+            .ctx(|| format!("encoding {}", self.path.display()))?;
+        self.frames += 1;
+        Ok(())
+    }
+
+    /// Flush and close; returns the number of frames written.
+    pub fn finish(mut self) -> Result<u64, CvError> {
+        self.writer
+            .release()
+            .ctx(|| format!("closing {}", self.path.display()))?;
+        Ok(self.frames)
+    }
+}

@@ -1,0 +1,553 @@
+//! Simulator settings: plain structs with documented units, presets and `validate()`.
+
+use std::path::PathBuf;
+
+use serde::{Deserialize, Serialize};
+
+use crate::SynthError;
+
+/// Names accepted by `--preset`.
+pub const PRESETS: &[&str] = &["tiny", "paper"];
+
+/// Built-in procedural materials accepted by `--material`.
+pub const MATERIALS: &[&str] = &["patchwork", "leather", "brushed-metal", "tiles"];
+
+/// Where the material comes from.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MaterialSource {
+    /// A built-in procedural material (one of [`MATERIALS`]).
+    Procedural(String),
+    /// A folder with map images (see `docs/CONVENTIONS.md`, "Material maps for synth").
+    Maps(PathBuf),
+}
+
+/// The printed markers.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct MarkerSpec {
+    /// OpenCV dictionary name.
+    pub dictionary: String,
+    /// Side of the black marker square, cm.
+    pub size_cm: f64,
+    /// White paper around each marker, cm on every side.
+    pub paper_margin_cm: f64,
+    /// Ids at the region's top-left, top-right, bottom-right, bottom-left corners.
+    pub ids: [i32; 4],
+}
+
+/// A phone camera recording video.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct VideoSpec {
+    /// Frame width, pixels (portrait phones: the shorter side).
+    pub width: u32,
+    /// Frame height, pixels.
+    pub height: u32,
+    /// Field of view across the longer image side, degrees, in (0, 180).
+    pub fov_deg: f64,
+    /// Frames per second, > 0.
+    pub fps: f64,
+    /// Recording length, seconds, > 0.
+    pub duration_s: f64,
+    /// Radial distortion k1 (negative: barrel).
+    pub k1: f64,
+    /// Radial distortion k2.
+    pub k2: f64,
+    /// Focus breathing: relative frame-to-frame change of k1 and of the focal length.
+    pub breathing: f64,
+}
+
+/// The hand-held sweep of the flash camera.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SweepSpec {
+    /// Closest camera height above the plane, cm, > 0.
+    pub distance_min_cm: f64,
+    /// Farthest camera height, cm, >= `distance_min_cm`.
+    pub distance_max_cm: f64,
+    /// Side-to-side cycles over the whole recording.
+    pub side_cycles: f64,
+    /// Top-to-bottom half-cycles over the recording (1: one pass top to bottom).
+    pub vertical_passes: f64,
+    /// Standard deviation of the hand's tilt jitter, degrees.
+    pub tilt_jitter_deg: f64,
+    /// Probability that a frame is motion-blurred, in [0, 1].
+    pub motion_blur_probability: f64,
+}
+
+/// The reference photo.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct ReferenceSpec {
+    /// Width, pixels.
+    pub width: u32,
+    /// Height, pixels.
+    pub height: u32,
+    /// Field of view across the longer side, degrees.
+    pub fov_deg: f64,
+    /// Camera height above the plane, cm.
+    pub distance_cm: f64,
+    /// Tilt away from parallel, degrees (0: the paper's levelled photo).
+    pub tilt_deg: f64,
+    /// JPEG quality, 1-100.
+    pub jpeg_quality: i32,
+    /// Supersampling per axis (anti-aliasing of marker edges).
+    pub supersample: u32,
+}
+
+/// Lights and sensor.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct LightSpec {
+    /// Flash intensity `I` of eq. (9), linear pixel value * cm^2.
+    pub flash_intensity: f64,
+    /// Flash position in the camera frame (x right, y down, z forward), cm.
+    pub flash_offset_cm: [f64; 3],
+    /// Uniform ambient light during the video: adds `ambient * rho_d` (linear).
+    pub ambient: f64,
+    /// Room light for the no-flash reference photo: adds `ambient * rho_d` (linear).
+    pub reference_ambient: f64,
+    /// Shot-noise gain: noise variance grows by `shot_noise * value` (linear units).
+    pub shot_noise: f64,
+    /// Read-noise standard deviation, linear units.
+    pub read_noise: f64,
+}
+
+/// An optional second, no-flash camera filming from an oblique angle (paper 3.3).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SecondCameraSpec {
+    /// Frame width, pixels.
+    pub width: u32,
+    /// Frame height, pixels.
+    pub height: u32,
+    /// Field of view across the longer side, degrees.
+    pub fov_deg: f64,
+    /// Frames per second.
+    pub fps: f64,
+    /// Angle between the view axis and the plane normal, degrees (30-50 typical).
+    pub oblique_deg: f64,
+    /// Azimuth of the camera around the region centre, degrees (0: from +x).
+    pub azimuth_deg: f64,
+    /// Distance from the region centre, cm.
+    pub distance_cm: f64,
+    /// How much earlier than the flash camera it starts recording, seconds, >= 0.
+    pub lead_s: f64,
+    /// Rolling-shutter readout time (top row to bottom row), seconds.
+    pub readout_s: f64,
+}
+
+/// Everything `svbrdf synth` needs.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct SynthConfig {
+    /// Preset name this config started from.
+    pub preset: String,
+    /// Random seed; output is deterministic for a seed.
+    pub seed: u64,
+    /// The material.
+    pub material: MaterialSource,
+    /// Material region width and height, cm (the markers sit at its corners).
+    pub region_cm: [f64; 2],
+    /// Ground-truth map resolution, pixels per cm.
+    pub map_px_per_cm: f64,
+    /// Smallest feature of procedural materials, cm.
+    pub feature_cm: f64,
+    /// Markers.
+    pub markers: MarkerSpec,
+    /// Flash video camera.
+    pub video: VideoSpec,
+    /// Hand motion.
+    pub sweep: SweepSpec,
+    /// Reference photo.
+    pub reference: ReferenceSpec,
+    /// Light and sensor.
+    pub light: LightSpec,
+    /// Every n-th frame goes into the ground-truth registered capture (paper: 5).
+    pub frame_step: u32,
+    /// Optional second camera.
+    pub second_camera: Option<SecondCameraSpec>,
+    /// Held-out light positions, cm (never visited by the flash).
+    pub holdout_lights_cm: Vec<[f64; 3]>,
+    /// Held-out overhead camera position, cm.
+    pub holdout_camera_cm: [f64; 3],
+}
+
+impl Default for SynthConfig {
+    fn default() -> Self {
+        Self::tiny()
+    }
+}
+
+impl SynthConfig {
+    /// A preset by name.
+    pub fn preset(name: &str) -> Result<Self, SynthError> {
+        match name {
+            "tiny" => Ok(Self::tiny()),
+            "paper" => Ok(Self::paper()),
+            other => Err(SynthError::invalid(
+                "preset",
+                format!("{other:?}"),
+                format!("one of {}", PRESETS.join(", ")),
+            )),
+        }
+    }
+
+    /// Small and fast, for tests: 270x480 at 30 fps for 3 s over a 6 x 6 cm region.
+    pub fn tiny() -> Self {
+        Self {
+            preset: "tiny".into(),
+            seed: 1,
+            material: MaterialSource::Procedural("patchwork".into()),
+            region_cm: [6.0, 6.0],
+            map_px_per_cm: 24.0,
+            feature_cm: 0.25,
+            markers: MarkerSpec {
+                dictionary: "DICT_6X6_250".into(),
+                size_cm: 1.6,
+                paper_margin_cm: 0.3,
+                ids: [0, 1, 2, 3],
+            },
+            video: VideoSpec {
+                width: 270,
+                height: 480,
+                fov_deg: 70.0,
+                fps: 30.0,
+                duration_s: 3.0,
+                k1: -0.06,
+                k2: 0.01,
+                breathing: 0.01,
+            },
+            sweep: SweepSpec {
+                distance_min_cm: 9.0,
+                distance_max_cm: 12.0,
+                side_cycles: 2.0,
+                vertical_passes: 1.0,
+                tilt_jitter_deg: 3.0,
+                motion_blur_probability: 0.05,
+            },
+            reference: ReferenceSpec {
+                width: 720,
+                height: 1280,
+                fov_deg: 70.0,
+                distance_cm: 20.0,
+                tilt_deg: 0.0,
+                jpeg_quality: 92,
+                supersample: 3,
+            },
+            light: LightSpec::default(),
+            frame_step: 5,
+            second_camera: None,
+            holdout_lights_cm: default_holdout_lights(),
+            holdout_camera_cm: [0.0, 0.0, 30.0],
+        }
+    }
+
+    /// The paper's setting: 2160x3840 portrait at 30 fps for 20 s, 20 x 20 cm region,
+    /// 10-20 cm sweep, 100 px/cm maps (about 4 million output pixels).
+    pub fn paper() -> Self {
+        Self {
+            preset: "paper".into(),
+            region_cm: [20.0, 20.0],
+            map_px_per_cm: 100.0,
+            feature_cm: 0.05,
+            video: VideoSpec {
+                width: 2160,
+                height: 3840,
+                duration_s: 20.0,
+                ..Self::tiny().video
+            },
+            sweep: SweepSpec {
+                distance_min_cm: 10.0,
+                distance_max_cm: 20.0,
+                side_cycles: 5.0,
+                vertical_passes: 2.0,
+                ..Self::tiny().sweep
+            },
+            reference: ReferenceSpec {
+                width: 2988,
+                height: 5312,
+                distance_cm: 28.0,
+                supersample: 2,
+                ..Self::tiny().reference
+            },
+            ..Self::tiny()
+        }
+    }
+
+    /// A second camera suited to this preset's region.
+    pub fn default_second_camera(&self) -> SecondCameraSpec {
+        let reach = 0.5 * self.region_cm[0].max(self.region_cm[1]);
+        SecondCameraSpec {
+            width: self.video.width,
+            height: self.video.height,
+            fov_deg: 65.0,
+            fps: 30.0,
+            oblique_deg: 40.0,
+            azimuth_deg: 200.0,
+            distance_cm: (2.5 * reach).max(15.0),
+            lead_s: 0.4,
+            readout_s: 0.02,
+        }
+    }
+
+    /// Check every number; the error names the setting and its accepted range.
+    pub fn validate(&self) -> Result<(), SynthError> {
+        fn pos(what: &str, v: f64, unit: &str) -> Result<(), SynthError> {
+            if v > 0.0 && v.is_finite() {
+                Ok(())
+            } else {
+                Err(SynthError::invalid(
+                    what,
+                    v,
+                    format!("{unit}, greater than 0"),
+                ))
+            }
+        }
+        fn fov(what: &str, v: f64) -> Result<(), SynthError> {
+            if v > 0.0 && v < 180.0 {
+                Ok(())
+            } else {
+                Err(SynthError::invalid(
+                    what,
+                    v,
+                    "degrees, in the open range (0, 180)",
+                ))
+            }
+        }
+        fn size(what: &str, w: u32, h: u32) -> Result<(), SynthError> {
+            if (16..=8192).contains(&w) && (16..=8192).contains(&h) {
+                Ok(())
+            } else {
+                Err(SynthError::invalid(
+                    what,
+                    format!("{w}x{h}"),
+                    "pixels, each side in [16, 8192]",
+                ))
+            }
+        }
+        pos("region width", self.region_cm[0], "cm")?;
+        pos("region height", self.region_cm[1], "cm")?;
+        pos("map resolution", self.map_px_per_cm, "pixels per cm")?;
+        if self.region_cm[0] * self.map_px_per_cm > 16384.0
+            || self.region_cm[1] * self.map_px_per_cm > 16384.0
+        {
+            return Err(SynthError::invalid(
+                "map size",
+                format!(
+                    "{:.0} px",
+                    self.region_cm[0].max(self.region_cm[1]) * self.map_px_per_cm
+                ),
+                "at most 16384 px per side (lower --map-px-per-cm)",
+            ));
+        }
+        pos("feature size", self.feature_cm, "cm")?;
+        pos("marker size", self.markers.size_cm, "cm")?;
+        if !(self.markers.paper_margin_cm >= 0.0) {
+            return Err(SynthError::invalid(
+                "paper margin",
+                self.markers.paper_margin_cm,
+                "cm, >= 0",
+            ));
+        }
+        let v = &self.video;
+        size("video size", v.width, v.height)?;
+        fov("video field of view", v.fov_deg)?;
+        pos("frame rate", v.fps, "frames per second")?;
+        pos("duration", v.duration_s, "seconds")?;
+        if v.fps * v.duration_s > 100_000.0 {
+            return Err(SynthError::invalid(
+                "frame count",
+                v.fps * v.duration_s,
+                "at most 100000 frames",
+            ));
+        }
+        if !(v.k1.abs() < 0.5 && v.k2.abs() < 0.5) {
+            return Err(SynthError::invalid(
+                "distortion",
+                format!("k1={} k2={}", v.k1, v.k2),
+                "|k1|, |k2| < 0.5",
+            ));
+        }
+        if !(0.0..0.2).contains(&v.breathing) {
+            return Err(SynthError::invalid(
+                "breathing",
+                v.breathing,
+                "a relative change in [0, 0.2)",
+            ));
+        }
+        let s = &self.sweep;
+        pos("minimum distance", s.distance_min_cm, "cm")?;
+        pos("maximum distance", s.distance_max_cm, "cm")?;
+        if s.distance_max_cm < s.distance_min_cm {
+            return Err(SynthError::invalid(
+                "maximum distance",
+                s.distance_max_cm,
+                format!("cm, at least the minimum distance {}", s.distance_min_cm),
+            ));
+        }
+        if !(0.0..=1.0).contains(&s.motion_blur_probability) {
+            return Err(SynthError::invalid(
+                "motion blur probability",
+                s.motion_blur_probability,
+                "a probability in [0, 1]",
+            ));
+        }
+        if !(s.tilt_jitter_deg >= 0.0 && s.tilt_jitter_deg < 30.0) {
+            return Err(SynthError::invalid(
+                "tilt jitter",
+                s.tilt_jitter_deg,
+                "degrees, in [0, 30)",
+            ));
+        }
+        let r = &self.reference;
+        size("reference size", r.width, r.height)?;
+        fov("reference field of view", r.fov_deg)?;
+        pos("reference distance", r.distance_cm, "cm")?;
+        if !(r.tilt_deg.abs() < 30.0) {
+            return Err(SynthError::invalid(
+                "reference tilt",
+                r.tilt_deg,
+                "degrees, |tilt| < 30",
+            ));
+        }
+        if !(1..=100).contains(&r.jpeg_quality) {
+            return Err(SynthError::invalid(
+                "JPEG quality",
+                r.jpeg_quality,
+                "1 to 100",
+            ));
+        }
+        if !(1..=8).contains(&r.supersample) {
+            return Err(SynthError::invalid(
+                "supersampling",
+                r.supersample,
+                "1 to 8 samples per axis",
+            ));
+        }
+        let l = &self.light;
+        pos("flash intensity", l.flash_intensity, "linear value * cm^2")?;
+        for (what, val) in [
+            ("ambient", l.ambient),
+            ("reference ambient", l.reference_ambient),
+            ("shot noise", l.shot_noise),
+            ("read noise", l.read_noise),
+        ] {
+            if !(val >= 0.0 && val.is_finite()) {
+                return Err(SynthError::invalid(what, val, ">= 0"));
+            }
+        }
+        if self.frame_step == 0 {
+            return Err(SynthError::invalid("frame step", 0, "at least 1"));
+        }
+        if let Some(c) = &self.second_camera {
+            size("second camera size", c.width, c.height)?;
+            fov("second camera field of view", c.fov_deg)?;
+            pos("second camera frame rate", c.fps, "frames per second")?;
+            pos("second camera distance", c.distance_cm, "cm")?;
+            if !(c.oblique_deg >= 0.0 && c.oblique_deg < 80.0) {
+                return Err(SynthError::invalid(
+                    "second camera angle",
+                    c.oblique_deg,
+                    "degrees from the normal, in [0, 80)",
+                ));
+            }
+            if !(c.lead_s >= 0.0 && c.lead_s < v.duration_s) {
+                return Err(SynthError::invalid(
+                    "second camera lead",
+                    c.lead_s,
+                    "seconds, in [0, duration)",
+                ));
+            }
+            if !(c.readout_s >= 0.0 && c.readout_s < 1.0 / c.fps) {
+                return Err(SynthError::invalid(
+                    "rolling-shutter readout",
+                    c.readout_s,
+                    "seconds, in [0, 1/fps)",
+                ));
+            }
+        }
+        for p in &self.holdout_lights_cm {
+            if !(p[2] > 0.0) {
+                return Err(SynthError::invalid(
+                    "held-out light height",
+                    p[2],
+                    "cm above the plane, > 0",
+                ));
+            }
+        }
+        pos("held-out camera height", self.holdout_camera_cm[2], "cm")?;
+        if let MaterialSource::Procedural(name) = &self.material {
+            if !MATERIALS.contains(&name.as_str()) {
+                return Err(SynthError::invalid(
+                    "material",
+                    format!("{name:?}"),
+                    format!("one of {}", MATERIALS.join(", ")),
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Default for LightSpec {
+    fn default() -> Self {
+        Self {
+            // White paper (rho_d 0.8) at 10 cm reads about 0.8 linear: bright but below clipping.
+            flash_intensity: 320.0,
+            flash_offset_cm: [1.4, -0.3, 0.0],
+            ambient: 0.03,
+            reference_ambient: 0.7,
+            shot_noise: 4e-4,
+            read_noise: 2e-3,
+        }
+    }
+}
+
+/// Oblique held-out lights: 20-25 cm from the centre at 30-50 degrees above the plane,
+/// far from the flash's near-overhead positions.
+fn default_holdout_lights() -> Vec<[f64; 3]> {
+    [
+        (0.0, 35.0, 22.0),
+        (90.0, 45.0, 20.0),
+        (200.0, 30.0, 25.0),
+        (300.0, 50.0, 20.0),
+    ]
+    .iter()
+    .map(|&(az, el, d): &(f64, f64, f64)| {
+        let (az, el) = (az.to_radians(), el.to_radians());
+        [
+            d * el.cos() * az.cos(),
+            d * el.cos() * az.sin(),
+            d * el.sin(),
+        ]
+    })
+    .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_validate_and_bad_values_are_named() {
+        for p in PRESETS {
+            SynthConfig::preset(p).unwrap().validate().unwrap();
+        }
+        assert!(SynthConfig::preset("huge")
+            .unwrap_err()
+            .to_string()
+            .contains("\"huge\""));
+        let mut c = SynthConfig::tiny();
+        c.video.fps = 0.0;
+        let e = c.validate().unwrap_err().to_string();
+        assert!(
+            e.contains("frame rate 0") && e.contains("greater than 0"),
+            "{e}"
+        );
+        let mut c = SynthConfig::tiny();
+        c.video.fov_deg = 180.0;
+        assert!(c.validate().unwrap_err().to_string().contains("(0, 180)"));
+        let mut c = SynthConfig::tiny();
+        c.sweep.distance_min_cm = -3.0;
+        assert!(c
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("minimum distance -3"));
+    }
+}

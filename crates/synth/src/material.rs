@@ -1,0 +1,426 @@
+//! Ground-truth material maps: procedural presets or maps loaded from image files,
+//! rasterised on a plane grid and sampled bilinearly by the renderer.
+
+use std::path::Path;
+
+use rayon::prelude::*;
+use svbrdf_core::brdf::BrdfParams;
+use svbrdf_core::geometry::{Vec2, Vec3};
+use svbrdf_core::image::ImageF32;
+use svbrdf_core::maps::{read_image_linear, Encoding};
+use svbrdf_core::plane::{PlaneGrid, Region};
+
+use crate::noise::{fbm, value, voronoi};
+use crate::SynthError;
+
+/// svBRDF maps on a plane grid. Colours are linear RGB; `normal` is the tangent-space
+/// unit normal (x along plane +x, y along plane +y, z out of the surface).
+#[derive(Debug, Clone)]
+pub struct MaterialMaps {
+    /// The grid the maps cover.
+    pub grid: PlaneGrid,
+    /// Diffuse albedo rho_d, linear RGB.
+    pub diffuse: ImageF32,
+    /// Specular albedo rho_s, linear RGB.
+    pub specular: ImageF32,
+    /// Roughness (alpha_x, alpha_y).
+    pub roughness: ImageF32,
+    /// Unit normal (x, y, z).
+    pub normal: ImageF32,
+}
+
+/// One texel before normals are derived.
+#[derive(Debug, Clone, Copy)]
+struct Texel {
+    rho_d: [f64; 3],
+    rho_s: [f64; 3],
+    alpha: [f64; 2],
+    height_cm: f64,
+}
+
+/// A base material of the procedural presets.
+#[derive(Debug, Clone, Copy)]
+struct Base {
+    rho_d: [f64; 3],
+    rho_s: [f64; 3],
+    alpha: [f64; 2],
+}
+
+const LEATHER: Base = Base {
+    rho_d: [0.30, 0.05, 0.04],
+    rho_s: [0.06; 3],
+    alpha: [0.22, 0.22],
+};
+const BRUSHED: Base = Base {
+    rho_d: [0.06, 0.06, 0.06],
+    rho_s: [0.50, 0.50, 0.50],
+    alpha: [0.08, 0.22],
+};
+const FABRIC: Base = Base {
+    rho_d: [0.04, 0.08, 0.30],
+    rho_s: [0.03; 3],
+    alpha: [0.35, 0.25],
+};
+const GOLD: Base = Base {
+    rho_d: [0.10, 0.07, 0.02],
+    rho_s: [0.60, 0.45, 0.16],
+    alpha: [0.16, 0.16],
+};
+const PAINT: Base = Base {
+    rho_d: [0.70, 0.68, 0.62],
+    rho_s: [0.12; 3],
+    alpha: [0.12, 0.12],
+};
+const GROUT: Base = Base {
+    rho_d: [0.15, 0.14, 0.12],
+    rho_s: [0.02; 3],
+    alpha: [0.5, 0.5],
+};
+
+impl MaterialMaps {
+    /// Rasterise a built-in material over `grid`. `feature_cm` is its smallest detail.
+    pub fn procedural(
+        name: &str,
+        grid: PlaneGrid,
+        feature_cm: f64,
+        seed: u64,
+    ) -> Result<Self, SynthError> {
+        let f = feature_cm;
+        let cell = (grid.region.width().min(grid.region.height()) / 4.0).clamp(1.0, 3.0);
+        let texel = |x: f64, y: f64| -> Texel {
+            match name {
+                "leather" => leather(seed, x, y, f),
+                "brushed-metal" => brushed(seed, x, y, f),
+                "tiles" => tiles(seed, x, y, f, cell),
+                _ => patchwork(seed, x, y, f, cell),
+            }
+        };
+        if !crate::config::MATERIALS.contains(&name) {
+            return Err(SynthError::invalid(
+                "material",
+                format!("{name:?}"),
+                crate::config::MATERIALS.join(", "),
+            ));
+        }
+        let texels: Vec<Texel> = (0..grid.height)
+            .into_par_iter()
+            .flat_map_iter(|r| (0..grid.width).map(move |c| (c, r)).collect::<Vec<_>>())
+            .map(|(c, r)| {
+                let p = grid.pixel_centre(c, r);
+                texel(p.x, p.y)
+            })
+            .collect();
+        Ok(Self::from_texels(grid, &texels))
+    }
+
+    fn from_texels(grid: PlaneGrid, texels: &[Texel]) -> Self {
+        let (w, h) = (grid.width, grid.height);
+        let mut diffuse = ImageF32::new(w, h, 3);
+        let mut specular = ImageF32::new(w, h, 3);
+        let mut roughness = ImageF32::new(w, h, 2);
+        let mut normal = ImageF32::new(w, h, 3);
+        let step = 1.0 / grid.px_per_cm;
+        for r in 0..h {
+            for c in 0..w {
+                let t = &texels[r * w + c];
+                for k in 0..3 {
+                    let d = t.rho_d[k].clamp(0.0, 1.0);
+                    diffuse.pixel_mut(c, r)[k] = d as f32;
+                    specular.pixel_mut(c, r)[k] = t.rho_s[k].clamp(0.0, 1.0 - d) as f32;
+                }
+                roughness
+                    .pixel_mut(c, r)
+                    .copy_from_slice(&[t.alpha[0] as f32, t.alpha[1] as f32]);
+                // Central differences of the height field; +y is towards row 0.
+                let hx = |cc: usize| texels[r * w + cc].height_cm;
+                let hy = |rr: usize| texels[rr * w + c].height_cm;
+                let (c0, c1) = (c.saturating_sub(1), (c + 1).min(w - 1));
+                let (r0, r1) = (r.saturating_sub(1), (r + 1).min(h - 1));
+                let dhdx = (hx(c1) - hx(c0)) / (step * (c1 - c0).max(1) as f64);
+                let dhdy = (hy(r0) - hy(r1)) / (step * (r1 - r0).max(1) as f64);
+                let n = Vec3::new(-dhdx, -dhdy, 1.0).normalize();
+                normal
+                    .pixel_mut(c, r)
+                    .copy_from_slice(&[n.x as f32, n.y as f32, n.z as f32]);
+            }
+        }
+        Self {
+            grid,
+            diffuse,
+            specular,
+            roughness,
+            normal,
+        }
+    }
+
+    /// Load maps from a folder: `diffuse`, and optionally `specular`, `roughness`,
+    /// `normal`, each `.png`, `.jpg` or `.exr`. PNG/JPEG colour maps are sRGB; roughness
+    /// (R = alpha_x, G = alpha_y) and normal maps (OpenGL convention, `0.5 * n + 0.5`)
+    /// are linear; EXR files are linear with normals stored as they are. Images are
+    /// stretched over the grid's region; outside it they are mirrored.
+    pub fn from_folder(dir: &Path, grid: PlaneGrid, region: Region) -> Result<Self, SynthError> {
+        let find = |stem: &str| -> Option<std::path::PathBuf> {
+            ["png", "exr", "jpg", "jpeg"]
+                .iter()
+                .map(|e| dir.join(format!("{stem}.{e}")))
+                .find(|p| p.is_file())
+        };
+        let load = |stem: &str, enc: Encoding| -> Result<Option<(ImageF32, bool)>, SynthError> {
+            match find(stem) {
+                None => Ok(None),
+                Some(p) => {
+                    let is_exr = p.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+                    Ok(Some((read_image_linear(&p, enc)?, is_exr)))
+                }
+            }
+        };
+        if !dir.is_dir() {
+            return Err(SynthError::invalid(
+                "maps folder",
+                dir.display(),
+                "an existing folder with diffuse.png / .exr",
+            ));
+        }
+        let diffuse = load("diffuse", Encoding::Srgb)?.ok_or_else(|| {
+            SynthError::invalid(
+                "maps folder",
+                dir.display(),
+                "a folder containing diffuse.png, diffuse.exr or diffuse.jpg",
+            )
+        })?;
+        let specular = load("specular", Encoding::Srgb)?;
+        let roughness = load("roughness", Encoding::Linear)?;
+        let normal = load("normal", Encoding::Linear)?;
+        let sample = |img: &ImageF32, x: f64, y: f64, out: &mut [f32; 3]| {
+            // Mirror-repeat outside the region, so the surround keeps texture.
+            let u = mirror((x - region.x_min) / region.width());
+            let v = mirror((region.y_max - y) / region.height());
+            img.sample_bilinear(u * img.width as f64 - 0.5, v * img.height as f64 - 0.5, out);
+        };
+        let texels: Vec<Texel> = (0..grid.len())
+            .into_par_iter()
+            .map(|i| {
+                let p = grid.pixel_centre(i % grid.width, i / grid.width);
+                let mut d = [0f32; 3];
+                sample(&diffuse.0, p.x, p.y, &mut d);
+                let mut s = [0.04f32; 3];
+                if let Some((img, _)) = &specular {
+                    sample(img, p.x, p.y, &mut s);
+                }
+                let mut a = [0.3f32; 3];
+                if let Some((img, _)) = &roughness {
+                    sample(img, p.x, p.y, &mut a);
+                }
+                Texel {
+                    rho_d: d.map(f64::from),
+                    rho_s: s.map(f64::from),
+                    alpha: [f64::from(a[0]).max(0.01), f64::from(a[1]).max(0.01)],
+                    height_cm: 0.0,
+                }
+            })
+            .collect();
+        let mut maps = Self::from_texels(grid, &texels);
+        if let Some((img, is_exr)) = &normal {
+            for i in 0..grid.len() {
+                let (c, r) = (i % grid.width, i / grid.width);
+                let p = grid.pixel_centre(c, r);
+                let mut n = [0f32; 3];
+                sample(img, p.x, p.y, &mut n);
+                let v = if *is_exr {
+                    Vec3::new(n[0].into(), n[1].into(), n[2].into())
+                } else {
+                    Vec3::new(
+                        f64::from(n[0]) * 2.0 - 1.0,
+                        f64::from(n[1]) * 2.0 - 1.0,
+                        f64::from(n[2]) * 2.0 - 1.0,
+                    )
+                };
+                let v = if v.z > 0.05 { v.normalize() } else { Vec3::z() };
+                maps.normal
+                    .pixel_mut(c, r)
+                    .copy_from_slice(&[v.x as f32, v.y as f32, v.z as f32]);
+            }
+        }
+        Ok(maps)
+    }
+
+    /// Whether a plane point is covered by the maps.
+    pub fn covers(&self, p: Vec2) -> bool {
+        self.grid.region.contains(p)
+    }
+
+    /// Bilinearly sampled parameters and unit normal at a plane point.
+    #[inline]
+    pub fn sample(&self, p: Vec2) -> (BrdfParams, Vec3) {
+        let q = self.grid.to_pixel(p);
+        let (mut d, mut s, mut a, mut n) = ([0f32; 3], [0f32; 3], [0f32; 2], [0f32; 3]);
+        self.diffuse.sample_bilinear(q.x, q.y, &mut d);
+        self.specular.sample_bilinear(q.x, q.y, &mut s);
+        self.roughness.sample_bilinear(q.x, q.y, &mut a);
+        self.normal.sample_bilinear(q.x, q.y, &mut n);
+        let nv = Vec3::new(n[0].into(), n[1].into(), n[2].into());
+        let nv = nv.try_normalize(1e-9).unwrap_or_else(Vec3::z);
+        (
+            BrdfParams {
+                rho_d: d.map(f64::from),
+                rho_s: s.map(f64::from),
+                alpha_x: f64::from(a[0]),
+                alpha_y: f64::from(a[1]),
+                normal_theta_x: 0.0,
+                normal_theta_y: 0.0,
+            },
+            nv,
+        )
+    }
+
+    /// The maps cropped to a sub-grid (same resolution) for writing ground truth.
+    pub fn crop(&self, region: Region) -> Result<Self, SynthError> {
+        let sub = PlaneGrid::new(region, self.grid.px_per_cm)?;
+        let off = self.grid.to_pixel(sub.pixel_centre(0, 0));
+        let (ox, oy) = (off.x.round() as isize, off.y.round() as isize);
+        let crop = |img: &ImageF32| {
+            let mut out = ImageF32::new(sub.width, sub.height, img.channels);
+            for r in 0..sub.height {
+                for c in 0..sub.width {
+                    let sc = (c as isize + ox).clamp(0, img.width as isize - 1) as usize;
+                    let sr = (r as isize + oy).clamp(0, img.height as isize - 1) as usize;
+                    out.pixel_mut(c, r).copy_from_slice(img.pixel(sc, sr));
+                }
+            }
+            out
+        };
+        Ok(Self {
+            grid: sub,
+            diffuse: crop(&self.diffuse),
+            specular: crop(&self.specular),
+            roughness: crop(&self.roughness),
+            normal: crop(&self.normal),
+        })
+    }
+}
+
+fn mirror(t: f64) -> f64 {
+    let m = t.rem_euclid(2.0);
+    if m > 1.0 {
+        2.0 - m
+    } else {
+        m
+    }
+}
+
+fn scale(b: Base, kd: f64, ks: f64) -> ([f64; 3], [f64; 3]) {
+    (b.rho_d.map(|v| v * kd), b.rho_s.map(|v| v * ks))
+}
+
+fn base_texel(seed: u64, b: Base, x: f64, y: f64, f: f64, height_cm: f64) -> Texel {
+    // Medium-scale albedo variation (needed by feature-based alignment, paper 3.1).
+    let tex = 0.7 + 0.6 * fbm(seed, x / (12.0 * f), y / (12.0 * f), 4);
+    let (rho_d, rho_s) = scale(
+        b,
+        tex,
+        0.8 + 0.4 * value(seed ^ 0x77, x / (20.0 * f), y / (20.0 * f)),
+    );
+    Texel {
+        rho_d,
+        rho_s,
+        alpha: b.alpha,
+        height_cm,
+    }
+}
+
+fn leather(seed: u64, x: f64, y: f64, f: f64) -> Texel {
+    let (_, d1, d2) = voronoi(seed ^ 0x1EA7, x / (3.0 * f), y / (3.0 * f));
+    let grain = (d2 - d1).min(0.3) / 0.3; // 0 at cell borders
+    let h = 0.004 * grain + 0.002 * fbm(seed ^ 3, x / (8.0 * f), y / (8.0 * f), 3);
+    let mut t = base_texel(seed, LEATHER, x, y, f, h);
+    let crease = 0.75 + 0.25 * grain;
+    t.rho_d = t.rho_d.map(|v| v * crease);
+    t
+}
+
+fn brushed(seed: u64, x: f64, y: f64, f: f64) -> Texel {
+    // Grooves run along x, so the highlight stretches along y: alpha_x < alpha_y.
+    let h = 0.0015 * fbm(seed ^ 5, x / (40.0 * f), y / (0.8 * f), 3);
+    let mut t = base_texel(seed, BRUSHED, x, y, f, h);
+    let scratch = value(seed ^ 9, x / (60.0 * f), y / (2.0 * f));
+    t.alpha = [BRUSHED.alpha[0] * (0.8 + 0.4 * scratch), BRUSHED.alpha[1]];
+    t
+}
+
+fn fabric(seed: u64, x: f64, y: f64, f: f64) -> Texel {
+    let p = 2.0 * f;
+    let (sx, sy) = (
+        (x / p * std::f64::consts::TAU).sin(),
+        (y / p * std::f64::consts::TAU).sin(),
+    );
+    let h = 0.003 * (sx * sy);
+    let mut t = base_texel(seed, FABRIC, x, y, f, h);
+    let weave = 0.85 + 0.15 * sx * sy;
+    t.rho_d = t.rho_d.map(|v| v * weave);
+    t
+}
+
+fn gold(seed: u64, x: f64, y: f64, f: f64) -> Texel {
+    let (_, d1, _) = voronoi(seed ^ 0x601D, x / (5.0 * f), y / (5.0 * f));
+    let h = 0.006 * (1.0 - (d1 / 0.7).min(1.0)).powi(2);
+    base_texel(seed, GOLD, x, y, f, h)
+}
+
+fn paint(seed: u64, x: f64, y: f64, f: f64) -> Texel {
+    let h = 0.003 * fbm(seed ^ 11, x / (25.0 * f), y / (4.0 * f), 3);
+    base_texel(seed, PAINT, x, y, f, h)
+}
+
+fn patchwork(seed: u64, x: f64, y: f64, f: f64, cell: f64) -> Texel {
+    let (id, d1, d2) = voronoi(seed, x / cell, y / cell);
+    // Thin seams between patches.
+    if (d2 - d1) * cell < 1.2 * f {
+        let mut t = base_texel(seed, GROUT, x, y, f, -0.004);
+        t.alpha = GROUT.alpha;
+        return t;
+    }
+    match id % 5 {
+        0 => leather(seed, x, y, f),
+        1 => brushed(seed, x, y, f),
+        2 => fabric(seed, x, y, f),
+        3 => gold(seed, x, y, f),
+        _ => paint(seed, x, y, f),
+    }
+}
+
+fn tiles(seed: u64, x: f64, y: f64, f: f64, cell: f64) -> Texel {
+    let (u, v) = (x / cell, y / cell);
+    let (fu, fv) = (u - u.floor(), v - v.floor());
+    let grout = 1.5 * f / cell;
+    if fu < grout || fv < grout {
+        return base_texel(seed, GROUT, x, y, f, -0.01);
+    }
+    let id = ((u.floor() as i64) + (v.floor() as i64)).rem_euclid(2);
+    if id == 0 {
+        paint(seed, x, y, f)
+    } else {
+        gold(seed, x, y, f)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn procedural_maps_are_physical_and_deterministic() {
+        let grid = PlaneGrid::new(Region::centred(4.0, 4.0), 10.0).unwrap();
+        for name in crate::config::MATERIALS {
+            let a = MaterialMaps::procedural(name, grid, 0.25, 7).unwrap();
+            let b = MaterialMaps::procedural(name, grid, 0.25, 7).unwrap();
+            assert_eq!(a.diffuse, b.diffuse);
+            for i in 0..grid.len() {
+                let (c, r) = (i % grid.width, i / grid.width);
+                let (p, n) = a.sample(grid.pixel_centre(c, r));
+                assert!(p.is_physical(), "{name}: {p:?}");
+                assert!((n.norm() - 1.0).abs() < 1e-6 && n.z > 0.5);
+            }
+        }
+        assert!(MaterialMaps::procedural("velvet", grid, 0.25, 7).is_err());
+    }
+}
