@@ -36,6 +36,7 @@ enum Command {
 }
 
 #[derive(Args)]
+#[command(allow_negative_numbers = true)]
 struct SynthArgs {
     /// Output folder (must not exist unless --overwrite).
     #[arg(long)]

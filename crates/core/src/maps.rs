@@ -93,6 +93,9 @@ pub fn write_exr(
         use ex::WritableImage;
         image
             .write()
+            // Parallel compression stores chunks in completion order; a fixed order
+            // keeps output byte-identical for a given input.
+            .non_parallel()
             .to_buffered(&mut *w)
             .map_err(|e| CoreError::format(path, format!("EXR write failed: {e}")))
     })

@@ -183,7 +183,10 @@ pub fn synthesize(
 
     // Material, rasterised over the region and the markers' surroundings.
     progress.stage("material", 1);
-    let margin = cfg.markers.size_cm + cfg.markers.paper_margin_cm + 2.0;
+    // A whole number of texels, so the ground-truth crop shares the render raster exactly.
+    let margin = ((cfg.markers.size_cm + cfg.markers.paper_margin_cm + 2.0) * cfg.map_px_per_cm)
+        .ceil()
+        / cfg.map_px_per_cm;
     let grid = PlaneGrid::new(region.expanded(margin), cfg.map_px_per_cm)?;
     let material = match &cfg.material {
         MaterialSource::Procedural(name) => {
@@ -533,7 +536,7 @@ fn write_truth_maps(
     let grid = m.grid;
     let mut rough3 = ImageF32::new(grid.width, grid.height, 3);
     let mut normal01 = ImageF32::new(grid.width, grid.height, 3);
-    let mut mask = ImageF32::new(grid.width, grid.height, 1);
+    let mut mask = ImageF32::new(grid.width, grid.height, 3);
     let rough_max = m
         .roughness
         .data
@@ -606,7 +609,7 @@ fn write_truth_maps(
     write_exr(
         &dir.join("mask.exr"),
         &mask,
-        &["Y"],
+        &rgb,
         &base(
             "material_mask",
             Encoding::Linear,

@@ -125,7 +125,7 @@ pub struct MapFiles {
     pub roughness: String,
     /// Tangent-space normal: linear EXR holding x, y, z in [-1, 1].
     pub normal: String,
-    /// 1 where material is visible, 0 where marker paper covers it: linear EXR.
+    /// 1 where material is visible, 0 where marker paper covers it: linear EXR (R = G = B).
     pub mask: String,
 }
 

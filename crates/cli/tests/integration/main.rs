@@ -1,1 +1,5 @@
-//! Integration tests.
+//! Integration tests: one binary, driving the real `svbrdf` executable.
+
+mod bad_input;
+mod synth;
+mod util;
