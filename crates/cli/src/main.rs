@@ -127,6 +127,12 @@ fn run_synth(
     let progress = progress::Bars::new();
     let summary = synthesize(cfg, out, overwrite, &progress)
         .with_context(|| format!("synthesizing into {}", out.display()))?;
+    let t: Vec<String> = progress
+        .timings()
+        .iter()
+        .map(|(n, s)| format!("{n} {s:.1} s"))
+        .collect();
+    println!("timings: {}", t.join(", "));
     Ok(summary)
 }
 

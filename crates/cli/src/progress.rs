@@ -1,20 +1,27 @@
 //! Progress bars for library stages (the libraries only report; the binary draws).
 
 use std::sync::Mutex;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-/// One bar per stage, drawn on stderr when it is a terminal.
+/// One bar per stage, drawn on stderr when it is a terminal; also times each stage.
 pub struct Bars {
-    bar: Mutex<Option<ProgressBar>>,
+    bar: Mutex<Option<(ProgressBar, String, Instant)>>,
+    timings: Mutex<Vec<(String, f64)>>,
 }
 
 impl Bars {
     pub fn new() -> Self {
         Self {
             bar: Mutex::new(None),
+            timings: Mutex::new(Vec::new()),
         }
+    }
+
+    /// Wall-clock seconds per finished stage, in order.
+    pub fn timings(&self) -> Vec<(String, f64)> {
+        self.timings.lock().map(|t| t.clone()).unwrap_or_default()
     }
 }
 
@@ -30,13 +37,13 @@ impl svbrdf_synth::Progress for Bars {
         bar.set_message(name.to_string());
         bar.enable_steady_tick(Duration::from_millis(200));
         if let Ok(mut b) = self.bar.lock() {
-            *b = Some(bar);
+            *b = Some((bar, name.to_string(), Instant::now()));
         }
     }
 
     fn advance(&self, n: u64) {
         if let Ok(b) = self.bar.lock() {
-            if let Some(b) = b.as_ref() {
+            if let Some((b, _, _)) = b.as_ref() {
                 b.inc(n);
             }
         }
@@ -44,8 +51,11 @@ impl svbrdf_synth::Progress for Bars {
 
     fn finish(&self) {
         if let Ok(mut b) = self.bar.lock() {
-            if let Some(b) = b.take() {
-                b.finish();
+            if let Some((b, name, start)) = b.take() {
+                b.finish_and_clear();
+                if let Ok(mut t) = self.timings.lock() {
+                    t.push((name, start.elapsed().as_secs_f64()));
+                }
             }
         }
     }

@@ -33,6 +33,39 @@ pub fn linear_to_srgb8(v: f64) -> u8 {
     (linear_to_srgb(v) * 255.0).round() as u8
 }
 
+/// Fast linear-to-8-bit-sRGB encoder: a table over 2^16 linear steps, exact to the
+/// code value except within 1/65536 of a rounding boundary. For per-pixel use.
+pub struct Srgb8Encoder {
+    table: Vec<u8>,
+}
+
+impl Srgb8Encoder {
+    /// Build the table (64 KiB).
+    pub fn new() -> Self {
+        let table = (0..=65535u32)
+            .map(|i| linear_to_srgb8(f64::from(i) / 65535.0))
+            .collect();
+        Self { table }
+    }
+
+    /// Encode a linear value (clamped to [0, 1]; NaN gives 0).
+    #[inline]
+    pub fn encode(&self, v: f64) -> u8 {
+        let i = if v.is_finite() {
+            (v.clamp(0.0, 1.0) * 65535.0 + 0.5) as usize
+        } else {
+            0
+        };
+        self.table[i.min(65535)]
+    }
+}
+
+impl Default for Srgb8Encoder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
 /// Lookup table from 8-bit sRGB code values to linear values.
 pub fn srgb8_to_linear_table() -> [f32; 256] {
     let mut t = [0f32; 256];
@@ -73,6 +106,21 @@ mod tests {
         assert!((srgb_to_linear(0.5) - 0.214_041).abs() < 1e-5);
         assert_eq!(linear_to_srgb8(1.0), 255);
         assert_eq!(linear_to_srgb8(f64::NAN), 0);
+    }
+
+    #[test]
+    fn table_encoder_matches_exact_encoding() {
+        let e = Srgb8Encoder::new();
+        let mut off = 0;
+        for i in 0..20000 {
+            let v = f64::from(i) / 19999.0;
+            let d = (i32::from(e.encode(v)) - i32::from(linear_to_srgb8(v))).abs();
+            assert!(d <= 1);
+            off += d;
+        }
+        assert!(off < 200, "{off} of 20000 differ by one code value");
+        assert_eq!(e.encode(f64::NAN), 0);
+        assert_eq!(e.encode(7.0), 255);
     }
 
     #[test]

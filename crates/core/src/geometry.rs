@@ -141,6 +141,57 @@ impl RadialDistortion {
     }
 }
 
+/// Undistortion by table lookup on the distorted radius: built once per distortion
+/// (per frame), then each pixel costs one interpolation instead of Newton steps.
+#[derive(Debug, Clone)]
+pub struct UndistortTable {
+    step: f64,
+    ratio: Vec<f64>,
+}
+
+impl UndistortTable {
+    /// Table of `undistorted / distorted` radius for distorted radii in [0, r_max].
+    pub fn new(d: &RadialDistortion, r_max: f64, entries: usize) -> Self {
+        let n = entries.max(2);
+        let step = r_max.max(1e-9) / (n - 1) as f64;
+        let ratio = (0..n)
+            .map(|i| {
+                let r = i as f64 * step;
+                if r == 0.0 {
+                    1.0
+                } else {
+                    d.undistort(Vec2::new(r, 0.0)).x / r
+                }
+            })
+            .collect();
+        Self { step, ratio }
+    }
+
+    /// A table covering every pixel of `intr` (normalised radius of the farthest corner).
+    pub fn for_image(d: &RadialDistortion, intr: &Intrinsics) -> Self {
+        let corners = [
+            (-0.5, -0.5),
+            (f64::from(intr.width) - 0.5, f64::from(intr.height) - 0.5),
+        ];
+        let r = corners
+            .iter()
+            .flat_map(|&(x, _)| corners.iter().map(move |&(_, y)| Vec2::new(x, y)))
+            .map(|p| intr.pixel_to_normalized(p).norm())
+            .fold(0.0, f64::max);
+        Self::new(d, r * 1.05, 4096)
+    }
+
+    /// Undistort normalised coordinates.
+    #[inline]
+    pub fn undistort(&self, q: Vec2) -> Vec2 {
+        let r = q.norm();
+        let f = r / self.step;
+        let i = (f as usize).min(self.ratio.len() - 2);
+        let t = (f - i as f64).min(1.0);
+        q * (self.ratio[i] + (self.ratio[i + 1] - self.ratio[i]) * t)
+    }
+}
+
 /// A rigid camera pose: `rotation` maps camera axes to world axes (world_from_camera),
 /// `centre` is the camera centre in world coordinates (cm).
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -287,6 +338,20 @@ mod tests {
             intrinsics: intr,
             distortion: RadialDistortion { k1, k2 },
             pose,
+        }
+    }
+
+    #[test]
+    fn undistort_table_matches_newton() {
+        let d = RadialDistortion {
+            k1: -0.08,
+            k2: 0.02,
+        };
+        let intr = Intrinsics::from_fov(270, 480, 70.0).unwrap();
+        let t = UndistortTable::for_image(&d, &intr);
+        for &(u, v) in &[(0.0, 0.0), (269.0, 479.0), (135.0, 10.0), (3.0, 300.0)] {
+            let q = intr.pixel_to_normalized(Vec2::new(u, v));
+            assert!((t.undistort(q) - d.undistort(q)).norm() < 1e-7);
         }
     }
 

@@ -85,7 +85,7 @@ pub fn write_exr(
     let layer = ex::Layer::new(
         (img.width, img.height),
         attrs,
-        ex::Encoding::SMALL_LOSSLESS,
+        ex::Encoding::FAST_LOSSLESS,
         ex::AnyChannels::sort(channels),
     );
     let image = ex::Image::from_layer(layer);
@@ -199,6 +199,7 @@ fn write_png_bytes(
     write_atomic(path, |wr| {
         let mut enc = png::Encoder::new(&mut *wr, w, h);
         enc.set_color(color);
+        enc.set_compression(png::Compression::Fast);
         enc.set_depth(match depth {
             PngDepth::Eight => png::BitDepth::Eight,
             PngDepth::Sixteen => png::BitDepth::Sixteen,

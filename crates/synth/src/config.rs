@@ -1,5 +1,8 @@
 //! Simulator settings: plain structs with documented units, presets and `validate()`.
 
+// `!(x >= 0.0)` rejects NaN as well as out-of-range values; that is the point.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
+
 use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};

@@ -456,7 +456,10 @@ fn render_second_camera(
     );
     let base = Vec3::new(el.cos() * az.cos(), el.cos() * az.sin(), el.sin()) * sc.distance_cm;
     let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x2CA3);
-    let (p1, p2) = (rng.random_range(0.0..6.28), rng.random_range(0.0..6.28));
+    let (p1, p2) = (
+        rng.random_range(0.0..std::f64::consts::TAU),
+        rng.random_range(0.0..std::f64::consts::TAU),
+    );
     let mut writer = VideoWriter::create(&dir.join("second.mp4"), sc.fps, sc.width, sc.height)?;
     let mut frames = Vec::with_capacity(n as usize);
     let mut onset = None;

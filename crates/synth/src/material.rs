@@ -27,6 +27,9 @@ pub struct MaterialMaps {
     pub roughness: ImageF32,
     /// Unit normal (x, y, z).
     pub normal: ImageF32,
+    /// All of the above interleaved per texel (rho_d, rho_s, alpha, normal: 11 values),
+    /// so the renderer computes bilinear weights once per sample.
+    packed: Vec<[f32; 11]>,
 }
 
 /// One texel before normals are derived.
@@ -144,12 +147,33 @@ impl MaterialMaps {
                     .copy_from_slice(&[n.x as f32, n.y as f32, n.z as f32]);
             }
         }
+        Self::assemble(grid, diffuse, specular, roughness, normal)
+    }
+
+    fn assemble(
+        grid: PlaneGrid,
+        diffuse: ImageF32,
+        specular: ImageF32,
+        roughness: ImageF32,
+        normal: ImageF32,
+    ) -> Self {
+        let packed = (0..grid.len())
+            .map(|i| {
+                let mut t = [0f32; 11];
+                t[0..3].copy_from_slice(&diffuse.data[3 * i..3 * i + 3]);
+                t[3..6].copy_from_slice(&specular.data[3 * i..3 * i + 3]);
+                t[6..8].copy_from_slice(&roughness.data[2 * i..2 * i + 2]);
+                t[8..11].copy_from_slice(&normal.data[3 * i..3 * i + 3]);
+                t
+            })
+            .collect();
         Self {
             grid,
             diffuse,
             specular,
             roughness,
             normal,
+            packed,
         }
     }
 
@@ -221,6 +245,7 @@ impl MaterialMaps {
             .collect();
         let mut maps = Self::from_texels(grid, &texels);
         if let Some((img, is_exr)) = &normal {
+            let mut nmap = maps.normal.clone();
             for i in 0..grid.len() {
                 let (c, r) = (i % grid.width, i / grid.width);
                 let p = grid.pixel_centre(c, r);
@@ -236,10 +261,10 @@ impl MaterialMaps {
                     )
                 };
                 let v = if v.z > 0.05 { v.normalize() } else { Vec3::z() };
-                maps.normal
-                    .pixel_mut(c, r)
+                nmap.pixel_mut(c, r)
                     .copy_from_slice(&[v.x as f32, v.y as f32, v.z as f32]);
             }
+            maps = Self::assemble(maps.grid, maps.diffuse, maps.specular, maps.roughness, nmap);
         }
         Ok(maps)
     }
@@ -249,23 +274,39 @@ impl MaterialMaps {
         self.grid.region.contains(p)
     }
 
-    /// Bilinearly sampled parameters and unit normal at a plane point.
+    /// Bilinearly sampled parameters and unit normal at a plane point (clamped at the
+    /// border).
     #[inline]
     pub fn sample(&self, p: Vec2) -> (BrdfParams, Vec3) {
         let q = self.grid.to_pixel(p);
-        let (mut d, mut s, mut a, mut n) = ([0f32; 3], [0f32; 3], [0f32; 2], [0f32; 3]);
-        self.diffuse.sample_bilinear(q.x, q.y, &mut d);
-        self.specular.sample_bilinear(q.x, q.y, &mut s);
-        self.roughness.sample_bilinear(q.x, q.y, &mut a);
-        self.normal.sample_bilinear(q.x, q.y, &mut n);
-        let nv = Vec3::new(n[0].into(), n[1].into(), n[2].into());
+        let (w, h) = (self.grid.width, self.grid.height);
+        let x = q.x.clamp(0.0, (w - 1) as f64);
+        let y = q.y.clamp(0.0, (h - 1) as f64);
+        let (x0, y0) = (x as usize, y as usize);
+        let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+        let (fx, fy) = ((x - x0 as f64) as f32, (y - y0 as f64) as f32);
+        let weights = [
+            (1.0 - fx) * (1.0 - fy),
+            fx * (1.0 - fy),
+            (1.0 - fx) * fy,
+            fx * fy,
+        ];
+        let texels = [y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1];
+        let mut t = [0f32; 11];
+        for (wt, i) in weights.iter().zip(texels) {
+            let src = &self.packed[i];
+            for k in 0..11 {
+                t[k] += wt * src[k];
+            }
+        }
+        let nv = Vec3::new(t[8].into(), t[9].into(), t[10].into());
         let nv = nv.try_normalize(1e-9).unwrap_or_else(Vec3::z);
         (
             BrdfParams {
-                rho_d: d.map(f64::from),
-                rho_s: s.map(f64::from),
-                alpha_x: f64::from(a[0]),
-                alpha_y: f64::from(a[1]),
+                rho_d: [t[0].into(), t[1].into(), t[2].into()],
+                rho_s: [t[3].into(), t[4].into(), t[5].into()],
+                alpha_x: t[6].into(),
+                alpha_y: t[7].into(),
                 normal_theta_x: 0.0,
                 normal_theta_y: 0.0,
             },
@@ -289,13 +330,13 @@ impl MaterialMaps {
             }
             out
         };
-        Ok(Self {
-            grid: sub,
-            diffuse: crop(&self.diffuse),
-            specular: crop(&self.specular),
-            roughness: crop(&self.roughness),
-            normal: crop(&self.normal),
-        })
+        Ok(Self::assemble(
+            sub,
+            crop(&self.diffuse),
+            crop(&self.specular),
+            crop(&self.roughness),
+            crop(&self.normal),
+        ))
     }
 }
 

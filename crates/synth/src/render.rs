@@ -7,8 +7,8 @@ use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
 use svbrdf_core::brdf::{BrdfModel, LightView, Prepared, Ward};
-use svbrdf_core::color::linear_to_srgb8;
-use svbrdf_core::geometry::{Camera, Vec2, Vec3};
+use svbrdf_core::color::Srgb8Encoder;
+use svbrdf_core::geometry::{Camera, UndistortTable, Vec2, Vec3};
 use svbrdf_core::image::{ImageF32, ImageU8};
 
 use crate::scene::Scene;
@@ -36,8 +36,16 @@ pub struct Lighting {
 
 /// Linear radiance seen through one pixel position by one exposure.
 #[inline]
-pub fn shade(scene: &Scene, e: &Exposure, lighting: Lighting, px: Vec2, row: usize) -> [f64; 3] {
-    let dir = e.camera.pixel_ray(px);
+pub fn shade(
+    scene: &Scene,
+    e: &Exposure,
+    table: &UndistortTable,
+    lighting: Lighting,
+    px: Vec2,
+    row: usize,
+) -> [f64; 3] {
+    let q = table.undistort(e.camera.intrinsics.pixel_to_normalized(px));
+    let dir = e.camera.pose.camera_dir_to_world(Vec3::new(q.x, q.y, 1.0));
     let Some(p) = svbrdf_core::geometry::ray_plane(e.camera.pose.centre, dir) else {
         return [0.0; 3];
     };
@@ -45,7 +53,7 @@ pub fn shade(scene: &Scene, e: &Exposure, lighting: Lighting, px: Vec2, row: usi
     let surf = Vec3::new(p.x, p.y, 0.0);
     let mut out = params.rho_d.map(|d| lighting.ambient * d);
     if let Some(light) = e.light.filter(|_| row >= e.first_lit_row) {
-        let prep = Prepared::from_normal(params, n);
+        let prep = Prepared::for_evaluation(params, n);
         let obs = LightView::from_points(surf, light, e.camera.pose.centre);
         let l = Ward.radiance(&prep, &obs, lighting.intensity);
         for c in 0..3 {
@@ -68,20 +76,24 @@ pub fn render_linear(
     let mut img = ImageF32::new(w, h, 3);
     let ss = ss.max(1);
     let norm = 1.0 / (f64::from(ss * ss) * exposures.len() as f64);
+    let tables: Vec<UndistortTable> = exposures
+        .iter()
+        .map(|e| UndistortTable::for_image(&e.camera.distortion, &e.camera.intrinsics))
+        .collect();
     img.data
         .par_chunks_mut(w * 3)
         .enumerate()
         .for_each(|(row, line)| {
             for col in 0..w {
                 let mut acc = [0.0; 3];
-                for e in exposures {
+                for (e, table) in exposures.iter().zip(&tables) {
                     for sy in 0..ss {
                         for sx in 0..ss {
                             let px = Vec2::new(
                                 col as f64 + (f64::from(sx) + 0.5) / f64::from(ss) - 0.5,
                                 row as f64 + (f64::from(sy) + 0.5) / f64::from(ss) - 0.5,
                             );
-                            let v = shade(scene, e, lighting, px, row);
+                            let v = shade(scene, e, table, lighting, px, row);
                             for c in 0..3 {
                                 acc[c] += v[c];
                             }
@@ -101,6 +113,7 @@ pub fn render_linear(
 pub fn expose(img: &ImageF32, shot: f64, read: f64, seed: u64, frame: u64) -> ImageU8 {
     let (w, h) = (img.width, img.height);
     let mut out = ImageU8::new(w, h, 3);
+    let enc = Srgb8Encoder::new();
     out.data
         .par_chunks_mut(w * 3)
         .enumerate()
@@ -112,7 +125,7 @@ pub fn expose(img: &ImageF32, shot: f64, read: f64, seed: u64, frame: u64) -> Im
                 let v = f64::from(*v);
                 let sigma = (shot * v.max(0.0) + read * read).sqrt();
                 let z: f64 = StandardNormal.sample(&mut rng);
-                *o = linear_to_srgb8(v + sigma * z);
+                *o = enc.encode(v + sigma * z);
             }
         });
     out

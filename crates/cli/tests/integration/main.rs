@@ -1,4 +1,5 @@
 //! Integration tests: one binary, driving the real `svbrdf` executable.
+#![allow(clippy::unwrap_used, clippy::needless_range_loop)]
 
 mod bad_input;
 mod synth;

@@ -138,6 +138,15 @@ impl Prepared {
         }
     }
 
+    /// As [`from_normal`](Self::from_normal) but without the frame's derivatives: for
+    /// [`BrdfModel::brdf`] and [`BrdfModel::radiance`] only, never for `radiance_grad`.
+    pub fn for_evaluation(params: BrdfParams, n: Vec3) -> Self {
+        Self {
+            params,
+            frame: ShadingFrame::for_evaluation(n),
+        }
+    }
+
     /// Precompute the frame of `params`.
     pub fn new(params: BrdfParams) -> Self {
         Self {
