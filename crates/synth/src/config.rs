@@ -190,13 +190,14 @@ impl SynthConfig {
         }
     }
 
-    /// Small and fast, for tests: 270x480 at 30 fps for 3 s over a 6 x 6 cm region.
+    /// Small and fast, for tests: 270x480 at 30 fps for 3 s over an 8 x 8 cm region,
+    /// filmed from 7-10 cm so that markers leave the frame part of the time.
     pub fn tiny() -> Self {
         Self {
             preset: "tiny".into(),
             seed: 1,
             material: MaterialSource::Procedural("patchwork".into()),
-            region_cm: [6.0, 6.0],
+            region_cm: [8.0, 8.0],
             map_px_per_cm: 24.0,
             feature_cm: 0.25,
             markers: MarkerSpec {
@@ -216,8 +217,8 @@ impl SynthConfig {
                 breathing: 0.01,
             },
             sweep: SweepSpec {
-                distance_min_cm: 9.0,
-                distance_max_cm: 12.0,
+                distance_min_cm: 7.0,
+                distance_max_cm: 10.0,
                 side_cycles: 2.0,
                 vertical_passes: 1.0,
                 tilt_jitter_deg: 3.0,
@@ -283,7 +284,7 @@ impl SynthConfig {
             oblique_deg: 40.0,
             azimuth_deg: 200.0,
             distance_cm: (2.5 * reach).max(15.0),
-            lead_s: 0.4,
+            lead_s: 0.413,
             readout_s: 0.02,
         }
     }

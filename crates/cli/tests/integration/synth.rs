@@ -315,3 +315,114 @@ fn demo_writes_a_capture() {
     );
     assert!(out.join("registered/capture.json").is_file());
 }
+
+#[test]
+fn second_camera_starts_early_and_sees_the_flash_onset() {
+    let out = temp_dir().join("two");
+    let o = svbrdf(&[
+        "synth",
+        "--second-camera",
+        "--duration",
+        "1",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let t = truth(&out);
+    assert_eq!(t.streams.len(), 2);
+    let s = &t.streams[1];
+    let sc = t.config.second_camera.as_ref().unwrap();
+    assert!(!s.flash && (s.start_time_s + sc.lead_s).abs() < 1e-12);
+    // The onset frame is the first whose readout reaches t = 0 on the flash clock.
+    let onset = s.flash_onset_frame.unwrap() as usize;
+    let expected = ((sc.lead_s - sc.readout_s) * sc.fps).ceil() as usize;
+    assert_eq!(onset, expected);
+    assert!(s.frames[..onset].iter().all(|f| f.light_position.is_none()));
+    assert!(
+        s.frames[onset].first_lit_row.unwrap() > 0,
+        "rolling-shutter onset should split the frame"
+    );
+    // It stops before the flash camera does (the paper's requirement).
+    let last = s.frames.last().unwrap().time_s;
+    assert!(last < t.config.video.duration_s);
+    // Decoded brightness jumps at the onset.
+    let mut r = VideoReader::open(&out.join(&s.file)).unwrap();
+    let mut means = Vec::new();
+    while let Some(f) = r.read().unwrap() {
+        means.push(f.data.iter().map(|v| f64::from(*v)).sum::<f64>() / f.data.len() as f64);
+    }
+    assert_eq!(means.len(), s.frames.len());
+    assert!(
+        means[onset + 1] > means[onset - 1] + 20.0,
+        "{:?}",
+        &means[onset - 2..onset + 2]
+    );
+    // Only lit frames enter the registered capture.
+    let cap = RegisteredCapture::load(&out.join("registered")).unwrap();
+    assert!(cap.frames.iter().any(|f| f.source == 1));
+    assert!(cap
+        .frames
+        .iter()
+        .filter(|f| f.source == 1)
+        .all(|f| f.frame_index.unwrap() >= onset as u64));
+}
+
+#[test]
+fn material_from_map_images() {
+    use svbrdf_core::maps::{write_png, PngDepth};
+    let maps = temp_dir();
+    let (w, h) = (32, 32);
+    let mut diffuse = ImageF32::new(w, h, 3);
+    for (i, v) in diffuse.data.iter_mut().enumerate() {
+        *v = 0.1 + 0.6 * ((i / 3) % w) as f32 / w as f32;
+    }
+    write_png(
+        &maps.join("diffuse.png"),
+        &diffuse,
+        Encoding::Srgb,
+        PngDepth::Sixteen,
+        &[],
+    )
+    .unwrap();
+    let mut rough = ImageF32::new(w, h, 3);
+    rough.data.iter_mut().for_each(|v| *v = 0.2);
+    write_png(
+        &maps.join("roughness.png"),
+        &rough,
+        Encoding::Linear,
+        PngDepth::Sixteen,
+        &[],
+    )
+    .unwrap();
+    let out = temp_dir().join("maps");
+    let o = svbrdf(&[
+        "synth",
+        "--maps",
+        maps.to_str().unwrap(),
+        "--duration",
+        "0.2",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let t = truth(&out);
+    let gt = out.join("ground_truth");
+    let d = read_image_linear(&gt.join(&t.maps.diffuse), Encoding::Linear).unwrap();
+    // The map is stretched over the region: left edge dark, right edge bright, in linear.
+    let row = d.height / 2;
+    assert!(
+        (f64::from(d.pixel(0, row)[0]) - 0.1).abs() < 0.02,
+        "{}",
+        d.pixel(0, row)[0]
+    );
+    assert!(
+        (f64::from(d.pixel(d.width - 1, row)[0]) - 0.68).abs() < 0.03,
+        "{}",
+        d.pixel(d.width - 1, row)[0]
+    );
+    let r = read_image_linear(&gt.join(&t.maps.roughness), Encoding::Linear).unwrap();
+    assert!(r
+        .data
+        .chunks(3)
+        .all(|p| (p[0] - 0.2).abs() < 1e-3 && (p[1] - 0.2).abs() < 1e-3));
+}
