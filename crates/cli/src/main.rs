@@ -31,7 +31,10 @@ enum Command {
     Synth(SynthArgs),
     /// Synthesize a small capture of a built-in material and report what was written.
     Demo(DemoArgs),
-    /// Measure speed of the hot paths and print one JSON object per line.
+    /// Align a flash video to the plane defined by the markers in a reference photo and
+    /// write a registered capture (paper section 3.1).
+    Align(AlignArgs),
+    /// Measure speed and accuracy and print one JSON object per line.
     Bench(bench::BenchArgs),
 }
 
@@ -76,6 +79,104 @@ struct SynthArgs {
     /// Replace the output folder if it exists.
     #[arg(long)]
     overwrite: bool,
+}
+
+#[derive(Args)]
+#[command(allow_negative_numbers = true)]
+struct AlignArgs {
+    /// The flash video (any container and codec FFmpeg decodes; rotation metadata is applied).
+    #[arg(long)]
+    video: PathBuf,
+    /// The reference photo showing all four markers (JPEG/PNG).
+    #[arg(long)]
+    reference: PathBuf,
+    /// Phone description (JSON: fov_deg, flash_offset_cm, marker_size_cm,
+    /// marker_dictionary, frame_step). Missing fields take the paper's values:
+    /// 70 degrees, [1.4, -0.3, 0] cm, 1.6 cm, DICT_6X6_250, every 5th frame.
+    #[arg(long)]
+    camera: Option<PathBuf>,
+    /// Output folder for the registered capture.
+    #[arg(long)]
+    out: PathBuf,
+    /// Output region on the plane as x_min,x_max,y_min,y_max in cm (default: bounded
+    /// by the markers' inner corners).
+    #[arg(long, value_delimiter = ',', num_args = 4)]
+    region: Option<Vec<f64>>,
+    /// Output resolution in pixels per cm (default: half the frames' sampling density).
+    #[arg(long)]
+    px_per_cm: Option<f64>,
+    /// Long side, in pixels, of the images used for fine features (default 3840: full
+    /// resolution for 4K video; lower is faster and less precise).
+    #[arg(long)]
+    fine_long_side: Option<u32>,
+    /// Fine SIFT features per frame (default 12000, the paper's).
+    #[arg(long)]
+    fine_features: Option<usize>,
+    /// Minimum fine inliers per frame pair (default 60, the paper's).
+    #[arg(long)]
+    fine_min_inliers: Option<usize>,
+    /// Sub-frame grid as COLSxROWS (default: the paper's 5x11 at 2160x3840, scaled).
+    #[arg(long)]
+    subframes: Option<String>,
+    /// Test all frame pairs in coarse alignment (slow; for benchmarks).
+    #[arg(long)]
+    all_pairs: bool,
+    /// Replace the output folder if it exists.
+    #[arg(long)]
+    overwrite: bool,
+}
+
+fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
+    let mut c = svbrdf_align::AlignConfig::default();
+    if let Some(p) = &a.camera {
+        c.camera = svbrdf_align::CameraDescription::load(p)?;
+    }
+    if let Some(r) = &a.region {
+        c.region = Some(svbrdf_core::plane::Region { x_min: r[0], x_max: r[1], y_min: r[2], y_max: r[3] });
+    }
+    c.px_per_cm = a.px_per_cm;
+    if let Some(v) = a.fine_long_side {
+        c.fine_long_side = v;
+    }
+    if let Some(v) = a.fine_features {
+        c.fine_features = v;
+    }
+    if let Some(v) = a.fine_min_inliers {
+        c.fine_min_inliers = v;
+    }
+    if let Some(s) = &a.subframes {
+        let parts: Vec<&str> = s.split(['x', 'X']).collect();
+        let parsed = match parts.as_slice() {
+            [c, r] => c.parse::<u32>().ok().zip(r.parse::<u32>().ok()),
+            _ => None,
+        };
+        c.subframes = Some(parsed.ok_or_else(|| anyhow::anyhow!("invalid sub-frame grid {s:?} (expected COLSxROWS, e.g. 5x11)"))?);
+    }
+    c.all_pairs = a.all_pairs;
+    c.validate()?;
+    Ok(c)
+}
+
+fn run_align(a: &AlignArgs) -> Result<()> {
+    let cfg = align_config(a)?;
+    svbrdf_cv::set_single_threaded()?;
+    let progress = progress::Bars::new();
+    let inputs = svbrdf_align::AlignInputs { video: a.video.clone(), reference: a.reference.clone() };
+    let s = svbrdf_align::align(&inputs, &cfg, &a.out, a.overwrite, &progress)?;
+    let f = &s.frames;
+    println!("wrote {}", s.out.display());
+    println!(
+        "frames: {} decoded, {} kept; dropped {} blurry, {} disconnected, {} unregistered, {} outside the markers",
+        f.decoded, f.kept, f.blurry, f.disconnected, f.unregistered, f.outside
+    );
+    println!(
+        "matching: {} coarse pairs tested, {} connected, {} fine pairs; {} frames see markers, {} anchored to the reference photo",
+        s.coarse_pairs_tested, s.connected_pairs, s.fine_pairs, s.frames_with_markers, s.reference_anchored
+    );
+    println!("global solve: {} unknowns, residual rms {:.4} cm, median {:.4} cm", s.unknowns, s.solve_rms_cm, s.solve_median_cm);
+    let t: Vec<String> = s.timings.iter().map(|(n, v)| format!("{n} {v:.1} s")).collect();
+    println!("timings: {}", t.join(", "));
+    Ok(())
 }
 
 #[derive(Args)]
@@ -164,6 +265,7 @@ fn main() -> ExitCode {
                 println!("      the ground-truth registered capture is in {}/registered/", s.out.display());
             })
         }
+        Command::Align(a) => run_align(&a),
         Command::Bench(a) => bench::run(&a),
     };
     match result {

@@ -9,6 +9,7 @@
 #![deny(missing_docs)]
 
 pub mod aruco;
+pub mod features;
 pub mod video;
 
 use std::path::{Path, PathBuf};

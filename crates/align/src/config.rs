@@ -1,0 +1,166 @@
+//! Alignment settings: the phone description (`camera.json`) and the stage parameters
+//! of the paper's Table 1, scaled with resolution.
+
+use std::path::Path;
+
+use serde::{Deserialize, Serialize};
+use svbrdf_core::plane::Region;
+
+use crate::AlignError;
+
+/// What the paper measures once per phone (`camera.json`). Missing fields take the
+/// paper's values.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct CameraDescription {
+    /// Field of view across the longer image side, degrees (paper: 70).
+    pub fov_deg: f64,
+    /// Flash position in the camera frame (x right, y down, z forward), cm
+    /// (paper: [1.4, -0.3, 0]).
+    pub flash_offset_cm: [f64; 3],
+    /// Side of the printed black marker square, cm (paper: 1.6).
+    pub marker_size_cm: f64,
+    /// OpenCV marker dictionary (paper: DICT_6X6_250).
+    pub marker_dictionary: String,
+    /// Keep every n-th video frame (paper: 5).
+    pub frame_step: u32,
+}
+
+impl Default for CameraDescription {
+    fn default() -> Self {
+        Self {
+            fov_deg: 70.0,
+            flash_offset_cm: [1.4, -0.3, 0.0],
+            marker_size_cm: 1.6,
+            marker_dictionary: "DICT_6X6_250".into(),
+            frame_step: 5,
+        }
+    }
+}
+
+impl CameraDescription {
+    /// Read `camera.json`.
+    pub fn load(path: &Path) -> Result<Self, AlignError> {
+        let c: Self = svbrdf_core::fsutil::read_json(path)?;
+        c.validate()?;
+        Ok(c)
+    }
+
+    /// Check the numbers.
+    pub fn validate(&self) -> Result<(), AlignError> {
+        if !(self.fov_deg > 0.0 && self.fov_deg < 180.0) {
+            return Err(AlignError::invalid("field of view", self.fov_deg, "degrees, in (0, 180)"));
+        }
+        if !(self.marker_size_cm > 0.0 && self.marker_size_cm.is_finite()) {
+            return Err(AlignError::invalid("marker size", self.marker_size_cm, "cm, > 0"));
+        }
+        if self.frame_step == 0 {
+            return Err(AlignError::invalid("frame step", 0, "at least 1"));
+        }
+        if !self.flash_offset_cm.iter().all(|v| v.is_finite() && v.abs() < 50.0) {
+            return Err(AlignError::invalid("flash offset", format!("{:?}", self.flash_offset_cm), "cm, each |v| < 50"));
+        }
+        Ok(())
+    }
+}
+
+/// Stage parameters. Pixel distances are given at the paper's 3840-pixel long side and
+/// scaled to the actual resolution.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AlignConfig {
+    /// The phone.
+    pub camera: CameraDescription,
+    /// Output region on the plane (cm); default: bounded by the markers' inner corners.
+    pub region: Option<Region>,
+    /// Output resolution, pixels per cm; default: half the frames' mean sampling density.
+    pub px_per_cm: Option<f64>,
+    /// Drop frames whose blur metric is this many standard deviations below the mean.
+    pub blur_sigmas: f64,
+    /// Long side of the coarse images, pixels (paper: 1/4 of 3840 = 960).
+    pub coarse_long_side: u32,
+    /// SIFT features per coarse image (paper: 3,000).
+    pub coarse_features: usize,
+    /// Coarse similarity inlier distance at 960 px (paper: 20).
+    pub coarse_inlier_px: f64,
+    /// Minimum coarse inliers for a connection (paper: 20).
+    pub coarse_min_inliers: usize,
+    /// Radius of the flash highlight whose features are dropped, as a fraction of the
+    /// image's long side (paper: 75 px at 960).
+    pub highlight_radius: f64,
+    /// Long side of the images for fine features, pixels (paper: full scale, 3840).
+    pub fine_long_side: u32,
+    /// SIFT features per fine image (paper: 12,000).
+    pub fine_features: usize,
+    /// Fine homography inlier distance at 3840 px (paper: 60).
+    pub fine_inlier_px: f64,
+    /// Minimum fine inliers for a pair (paper: 60).
+    pub fine_min_inliers: usize,
+    /// Sub-frame grid (columns, rows); default scales the paper's 5 x 11 at 2160 x 3840.
+    pub subframes: Option<(u32, u32)>,
+    /// Match every frame against the reference photo for absolute constraints.
+    pub match_reference: bool,
+    /// Weight of sub-frame agreement in their overlaps, relative to a feature match.
+    pub overlap_weight: f64,
+    /// Gauss-Newton iterations of the global solve.
+    pub iterations: usize,
+    /// Test every pair in coarse matching instead of predicted overlaps (benchmarks).
+    pub all_pairs: bool,
+}
+
+impl Default for AlignConfig {
+    fn default() -> Self {
+        Self {
+            camera: CameraDescription::default(),
+            region: None,
+            px_per_cm: None,
+            blur_sigmas: 1.5,
+            coarse_long_side: 960,
+            coarse_features: 3000,
+            coarse_inlier_px: 20.0,
+            coarse_min_inliers: 20,
+            highlight_radius: 75.0 / 960.0,
+            fine_long_side: 3840,
+            fine_features: 12000,
+            fine_inlier_px: 60.0,
+            fine_min_inliers: 60,
+            subframes: None,
+            match_reference: true,
+            overlap_weight: 1.0,
+            iterations: 8,
+            all_pairs: false,
+        }
+    }
+}
+
+impl AlignConfig {
+    /// Check the numbers.
+    pub fn validate(&self) -> Result<(), AlignError> {
+        self.camera.validate()?;
+        if let Some(r) = &self.region {
+            r.validate()?;
+        }
+        if let Some(p) = self.px_per_cm {
+            if !(p > 0.0 && p <= 1000.0) {
+                return Err(AlignError::invalid("output resolution", p, "pixels per cm, in (0, 1000]"));
+            }
+        }
+        if !(self.blur_sigmas > 0.0) {
+            return Err(AlignError::invalid("blur threshold", self.blur_sigmas, "standard deviations, > 0"));
+        }
+        if self.coarse_long_side < 64 || self.fine_long_side < 64 {
+            return Err(AlignError::invalid("image size for features", self.coarse_long_side.min(self.fine_long_side), "at least 64 px"));
+        }
+        if self.coarse_features < 10 || self.fine_features < 10 {
+            return Err(AlignError::invalid("feature count", self.coarse_features.min(self.fine_features), "at least 10"));
+        }
+        if let Some((c, r)) = self.subframes {
+            if c == 0 || r == 0 || c > 64 || r > 64 {
+                return Err(AlignError::invalid("sub-frame grid", format!("{c}x{r}"), "1 to 64 in each direction"));
+            }
+        }
+        if !(0.0..0.5).contains(&self.highlight_radius) {
+            return Err(AlignError::invalid("highlight radius", self.highlight_radius, "a fraction of the long side in [0, 0.5)"));
+        }
+        Ok(())
+    }
+}

@@ -1,0 +1,136 @@
+//! Streaming decode of the kept frames and per-frame work: blur metric (eq. 1),
+//! markers, coarse and fine SIFT features. Only features and a small thumbnail stay in
+//! memory, so memory grows with the number of kept frames, not with video length.
+
+use std::path::Path;
+
+use rayon::prelude::*;
+use svbrdf_core::geometry::Vec2;
+use svbrdf_core::image::ImageU8;
+use svbrdf_cv::aruco::{detect_markers, Dictionary};
+use svbrdf_cv::features::{resize, sift, Features};
+use svbrdf_cv::video::VideoReader;
+
+use crate::blur::blur_metric;
+use crate::config::AlignConfig;
+use crate::reference::MarkerObservation;
+use crate::{AlignError, Progress};
+
+/// Everything kept about one decoded frame.
+#[derive(Debug, Clone)]
+pub struct FrameData {
+    /// Frame number in the video.
+    pub index: u64,
+    /// Time, seconds.
+    pub time_s: f64,
+    /// Full-resolution width.
+    pub width: u32,
+    /// Full-resolution height.
+    pub height: u32,
+    /// Eq. (1).
+    pub blur: f64,
+    /// Markers, full-resolution pixels.
+    pub markers: Vec<MarkerObservation>,
+    /// Coarse features, coordinates in full-resolution pixels.
+    pub coarse: Features,
+    /// Fine features, coordinates in full-resolution pixels.
+    pub fine: Features,
+    /// Small image for the panorama (long side <= 480).
+    pub thumb: ImageU8,
+}
+
+/// Map feature coordinates from an image scaled by `s` back to full resolution.
+fn unscale(mut f: Features, s: f64) -> Features {
+    for p in &mut f.points {
+        p[0] = ((f64::from(p[0]) + 0.5) / s - 0.5) as f32;
+        p[1] = ((f64::from(p[1]) + 0.5) / s - 0.5) as f32;
+    }
+    f
+}
+
+fn process(img: &ImageU8, index: u64, fps: f64, cfg: &AlignConfig, dict: Dictionary) -> Result<FrameData, AlignError> {
+    let long = img.width.max(img.height) as f64;
+    let cs = (f64::from(cfg.coarse_long_side) / long).min(1.0);
+    let fs = (f64::from(cfg.fine_long_side) / long).min(1.0);
+    let coarse_img = if cs < 1.0 { resize(img, cs)? } else { img.clone() };
+    let grey: Vec<f32> = coarse_img
+        .data
+        .chunks_exact(3)
+        .map(|p| (0.299 * f32::from(p[0]) + 0.587 * f32::from(p[1]) + 0.114 * f32::from(p[2])) / 255.0)
+        .collect();
+    let blur = blur_metric(&grey, coarse_img.width, coarse_img.height);
+    // Markers at up to 1920 px: large enough for sub-pixel corners, cheap to search.
+    let ms = (1920.0 / long).min(1.0);
+    let marker_img = if ms < 1.0 { resize(img, ms)? } else { img.clone() };
+    let markers = detect_markers(&marker_img, dict)?
+        .into_iter()
+        .map(|m| MarkerObservation {
+            id: m.id,
+            corners: m.corners.map(|c| Vec2::new((c[0] + 0.5) / ms - 0.5, (c[1] + 0.5) / ms - 0.5)),
+        })
+        .collect();
+    let exclude = |w: usize, h: usize| {
+        let l = w.max(h) as f64;
+        Some([0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0), cfg.highlight_radius * l])
+    };
+    let coarse = unscale(sift(&coarse_img, cfg.coarse_features, exclude(coarse_img.width, coarse_img.height))?, cs);
+    let fine_img = if fs < 1.0 { resize(img, fs)? } else { img.clone() };
+    let fine = unscale(sift(&fine_img, cfg.fine_features, exclude(fine_img.width, fine_img.height))?, fs);
+    let ts = (480.0 / long).min(1.0);
+    let thumb = if ts < 1.0 { resize(img, ts)? } else { img.clone() };
+    Ok(FrameData {
+        index,
+        time_s: index as f64 / fps.max(1e-9),
+        width: img.width as u32,
+        height: img.height as u32,
+        blur,
+        markers,
+        coarse,
+        fine,
+        thumb,
+    })
+}
+
+/// Decode every `frame_step`-th frame and process batches in parallel.
+pub fn decode_frames(video: &Path, cfg: &AlignConfig, dict: Dictionary, progress: &dyn Progress) -> Result<Vec<FrameData>, AlignError> {
+    let mut reader = VideoReader::open(video)?;
+    let info = reader.info();
+    let step = u64::from(cfg.camera.frame_step);
+    progress.stage("decode + features", info.frame_count.div_ceil(step));
+    let batch_size = 2 * rayon::current_num_threads().max(1);
+    let mut out = Vec::new();
+    let mut batch: Vec<(u64, ImageU8)> = Vec::with_capacity(batch_size);
+    loop {
+        let idx = reader.next_index();
+        let frame = if idx % step == 0 {
+            reader.read()?
+        } else {
+            if !reader.skip()? {
+                None
+            } else {
+                continue;
+            }
+        };
+        let done = frame.is_none();
+        if let Some(f) = frame {
+            batch.push((idx, f));
+        }
+        if batch.len() == batch_size || (done && !batch.is_empty()) {
+            let processed: Vec<Result<FrameData, AlignError>> =
+                batch.par_iter().map(|(i, img)| process(img, *i, info.fps, cfg, dict)).collect();
+            for p in processed {
+                out.push(p?);
+            }
+            progress.advance(batch.len() as u64);
+            batch.clear();
+        }
+        if done {
+            break;
+        }
+    }
+    progress.finish();
+    if out.is_empty() {
+        return Err(AlignError::Video(format!("{}: no frames could be decoded", video.display())));
+    }
+    Ok(out)
+}

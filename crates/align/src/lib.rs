@@ -1,0 +1,183 @@
+//! # svbrdf-align
+//!
+//! The geometry stage (paper section 3.1): from a hand-held flash video and a
+//! reference photo of four markers to a *registered capture*: for every kept frame, a
+//! piecewise-homography map from its pixels to the plane, its camera position and its
+//! flash position, in centimetres.
+//!
+//! Stages, in order: [`reference`] (world frame from the markers), frame decoding with
+//! blur selection ([`blur`]) and per-frame markers and SIFT features, coarse alignment
+//! (similarities between predicted overlaps, connectivity map, largest component),
+//! fine alignment (homography-verified matches between connected frames and with the
+//! reference photo), the global sub-frame solve ([`solve`]), poses ([`pose`]) and the
+//! outputs ([`output`]).
+#![deny(missing_docs)]
+
+pub mod blur;
+pub mod config;
+mod frames;
+mod matching;
+pub mod output;
+pub mod pose;
+pub mod reference;
+pub mod solve;
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use svbrdf_core::CoreError;
+use svbrdf_cv::CvError;
+
+pub use config::{AlignConfig, CameraDescription};
+pub use frames::FrameData;
+pub use matching::Connectivity;
+
+/// Errors of the geometry stage.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum AlignError {
+    /// A setting outside its range.
+    #[error("invalid {what} {value} (expected {expected})")]
+    Invalid {
+        /// Which setting.
+        what: String,
+        /// The value.
+        value: String,
+        /// The accepted range.
+        expected: String,
+    },
+    /// Markers missing or unusable.
+    #[error("{0}")]
+    Markers(String),
+    /// The video has no usable frames.
+    #[error("{0}")]
+    Video(String),
+    /// Frames could not be connected.
+    #[error("{0}")]
+    Connect(String),
+    /// The global solve failed.
+    #[error("global solve: {0}")]
+    Solve(String),
+    /// From the core.
+    #[error(transparent)]
+    Core(#[from] CoreError),
+    /// From OpenCV.
+    #[error(transparent)]
+    Cv(#[from] CvError),
+}
+
+impl AlignError {
+    /// An out-of-range setting.
+    pub fn invalid(what: impl Into<String>, value: impl ToString, expected: impl Into<String>) -> Self {
+        Self::Invalid { what: what.into(), value: value.to_string(), expected: expected.into() }
+    }
+}
+
+/// Progress reports; the binary draws them.
+pub trait Progress: Sync {
+    /// A stage with `total` steps begins.
+    fn stage(&self, name: &str, total: u64);
+    /// `n` more steps are done.
+    fn advance(&self, n: u64);
+    /// The stage is done.
+    fn finish(&self);
+}
+
+/// No progress display.
+pub struct NoProgress;
+
+impl Progress for NoProgress {
+    fn stage(&self, _: &str, _: u64) {}
+    fn advance(&self, _: u64) {}
+    fn finish(&self) {}
+}
+
+/// Why frames were not kept.
+#[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]
+pub struct DropCounts {
+    /// Frames decoded at the frame step.
+    pub decoded: usize,
+    /// Dropped by the blur metric.
+    pub blurry: usize,
+    /// Not in the largest connected component.
+    pub disconnected: usize,
+    /// No usable homography (too few fine matches).
+    pub unregistered: usize,
+    /// Camera pose outside the marker boundary.
+    pub outside: usize,
+    /// Kept.
+    pub kept: usize,
+}
+
+/// What [`align`] did.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct AlignSummary {
+    /// Output folder.
+    pub out: PathBuf,
+    /// Frame accounting.
+    pub frames: DropCounts,
+    /// Coarse pairs tested and connected.
+    pub coarse_pairs_tested: usize,
+    /// Pairs in the connectivity map after filtering.
+    pub connected_pairs: usize,
+    /// Fine pairs used in the solve.
+    pub fine_pairs: usize,
+    /// Frames anchored to the reference photo by feature matches.
+    pub reference_anchored: usize,
+    /// Frames with markers.
+    pub frames_with_markers: usize,
+    /// Global solve statistics.
+    pub solve_rms_cm: f64,
+    /// Median residual after the solve, cm.
+    pub solve_median_cm: f64,
+    /// Unknowns in the solve.
+    pub unknowns: usize,
+    /// Wall-clock seconds per stage.
+    pub timings: Vec<(String, f64)>,
+}
+
+/// Inputs of [`align`].
+#[derive(Debug, Clone)]
+pub struct AlignInputs {
+    /// The flash video.
+    pub video: PathBuf,
+    /// The reference photo.
+    pub reference: PathBuf,
+}
+
+struct Timer(Vec<(String, f64)>, Instant);
+
+impl Timer {
+    fn lap(&mut self, name: &str) {
+        self.0.push((name.into(), self.1.elapsed().as_secs_f64()));
+        self.1 = Instant::now();
+    }
+}
+
+/// Run the geometry stage and write a registered capture into `out`.
+pub fn align(inputs: &AlignInputs, cfg: &AlignConfig, out: &Path, overwrite: bool, progress: &dyn Progress) -> Result<AlignSummary, AlignError> {
+    cfg.validate()?;
+    let dict = svbrdf_cv::aruco::Dictionary::from_name(&cfg.camera.marker_dictionary)?;
+    let mut timer = Timer(Vec::new(), Instant::now());
+
+    // Reference photo and world frame.
+    let ref_img = svbrdf_cv::read_image(&inputs.reference)?;
+    let ref_k = svbrdf_core::geometry::Intrinsics::from_fov(ref_img.width as u32, ref_img.height as u32, cfg.camera.fov_deg)?;
+    let found = svbrdf_cv::aruco::detect_markers(&ref_img, dict)?;
+    let obs: Vec<reference::MarkerObservation> = found
+        .iter()
+        .map(|m| reference::MarkerObservation { id: m.id, corners: m.corners.map(|c| svbrdf_core::geometry::Vec2::new(c[0], c[1])) })
+        .collect();
+    let reference = reference::reference_frame(&ref_k, &obs, cfg.camera.marker_size_cm, 4)
+        .map_err(|e| AlignError::Markers(format!("{}: {e} (dictionary {})", inputs.reference.display(), dict.name())))?;
+    timer.lap("reference");
+
+    // Frames: decode, blur metric, markers, features.
+    let decoded = frames::decode_frames(&inputs.video, cfg, dict, progress)?;
+    timer.lap("decode + features");
+    let ref_features = if cfg.match_reference { Some(matching::reference_features(&ref_img, &reference, cfg)?) } else { None };
+    timer.lap("reference features");
+
+    let result = matching::register(decoded, &reference, ref_features.as_ref(), cfg, progress, &mut |n| timer.lap(n))?;
+    output::write(inputs, cfg, &reference, result, out, overwrite, timer.0, progress)
+}

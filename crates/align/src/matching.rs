@@ -1,0 +1,590 @@
+//! Coarse and fine alignment, the connectivity map, and the set-up of the global solve.
+
+use std::collections::{BTreeSet, HashMap, VecDeque};
+
+use rayon::prelude::*;
+use svbrdf_core::geometry::{Intrinsics, Mat3, Pose, Vec2};
+use svbrdf_core::homography::Homography;
+use svbrdf_core::image::ImageU8;
+use svbrdf_cv::features::{estimate_homography, estimate_similarity, match_one_to_one, resize, sift, Features};
+
+use crate::blur::blurry_frames;
+use crate::config::AlignConfig;
+use crate::frames::FrameData;
+use crate::pose::pose_from_homography;
+use crate::reference::ReferenceFrame;
+use crate::solve::{solve, Constraint, SolveReport};
+use crate::{AlignError, DropCounts, Progress};
+
+/// Features of the reference photo with their plane positions (cm).
+pub struct ReferenceFeatures {
+    features: Features,
+    plane: Vec<Vec2>,
+}
+
+/// Reference-photo features for absolute anchoring of frames.
+pub fn reference_features(img: &ImageU8, rf: &ReferenceFrame, cfg: &AlignConfig) -> Result<ReferenceFeatures, AlignError> {
+    let long = img.width.max(img.height) as f64;
+    let s = (f64::from(cfg.fine_long_side) / long).min(1.0);
+    let small = if s < 1.0 { resize(img, s)? } else { img.clone() };
+    let mut f = sift(&small, cfg.fine_features * 2, None)?;
+    let mut plane = Vec::with_capacity(f.len());
+    for p in &mut f.points {
+        let full = Vec2::new((f64::from(p[0]) + 0.5) / s - 0.5, (f64::from(p[1]) + 0.5) / s - 0.5);
+        plane.push(rf.plane_from_pixel.apply(full).unwrap_or_else(Vec2::zeros));
+    }
+    Ok(ReferenceFeatures { features: f, plane })
+}
+
+/// The connectivity map (paper 3.1.3): inlier counts between kept frames.
+#[derive(Debug, Clone, Default)]
+pub struct Connectivity {
+    /// Frames (indices into the decoded list) that the map covers.
+    pub frames: usize,
+    /// Raw inlier counts of tested pairs.
+    pub counts: HashMap<(usize, usize), usize>,
+    /// Pairs kept after thresholding and median filtering.
+    pub kept: BTreeSet<(usize, usize)>,
+}
+
+/// Result of registration, ready to be written.
+pub struct Registration {
+    /// Frames kept, with their data.
+    pub frames: Vec<FrameData>,
+    /// Per kept frame: sub-frame rectangles and plane_from_pixel homographies.
+    pub mappings: Vec<Vec<([f64; 4], Mat3)>>,
+    /// Per kept frame: camera pose.
+    pub poses: Vec<Pose>,
+    /// Intrinsics of the video camera.
+    pub intrinsics: Intrinsics,
+    /// Frame accounting.
+    pub drops: DropCounts,
+    /// Coarse connectivity (over frames after blur selection).
+    pub connectivity: Connectivity,
+    /// Coarse pairs tested.
+    pub coarse_tested: usize,
+    /// Fine pairs used.
+    pub fine_pairs: usize,
+    /// Frames anchored by reference matches.
+    pub reference_anchored: usize,
+    /// Frames with markers.
+    pub with_markers: usize,
+    /// Solve statistics.
+    pub solve: SolveReport,
+}
+
+fn pts(f: &Features, idx: impl Iterator<Item = u32>) -> Vec<[f64; 2]> {
+    idx.map(|i| {
+        let p = f.points[i as usize];
+        [f64::from(p[0]), f64::from(p[1])]
+    })
+    .collect()
+}
+
+/// Similarity between two frames' coarse features: (2x3 matrix a -> b, inliers).
+fn coarse_pair(a: &FrameData, b: &FrameData, cfg: &AlignConfig) -> Result<Option<([[f64; 3]; 2], usize)>, AlignError> {
+    let m = match_one_to_one(&a.coarse, &b.coarse, 0.8)?;
+    if m.len() < cfg.coarse_min_inliers {
+        return Ok(None);
+    }
+    let long = f64::from(a.width.max(a.height));
+    let thr = cfg.coarse_inlier_px * long / 960.0;
+    let src = pts(&a.coarse, m.iter().map(|x| x.0));
+    let dst = pts(&b.coarse, m.iter().map(|x| x.1));
+    Ok(estimate_similarity(&src, &dst, thr)?.and_then(|(t, inl)| {
+        let n = inl.iter().filter(|v| **v).count();
+        (n >= cfg.coarse_min_inliers).then_some((t, n))
+    }))
+}
+
+fn sim_to_mat(t: &[[f64; 3]; 2]) -> Mat3 {
+    Mat3::new(t[0][0], t[0][1], t[0][2], t[1][0], t[1][1], t[1][2], 0.0, 0.0, 1.0)
+}
+
+/// Coarse alignment: consecutive pairs, then pairs whose predicted footprints overlap.
+fn coarse(frames: &[FrameData], cfg: &AlignConfig, progress: &dyn Progress) -> Result<(Connectivity, usize), AlignError> {
+    let n = frames.len();
+    let mut counts = HashMap::new();
+    let mut tested = 0usize;
+    let chain: Vec<(usize, usize)> = if cfg.all_pairs {
+        (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect()
+    } else {
+        (0..n.saturating_sub(1)).map(|i| (i, i + 1)).collect()
+    };
+    progress.stage("coarse alignment", chain.len() as u64);
+    let results: Vec<_> = chain
+        .par_iter()
+        .map(|&(i, j)| {
+            let r = coarse_pair(&frames[i], &frames[j], cfg);
+            progress.advance(1);
+            r.map(|r| (i, j, r))
+        })
+        .collect::<Result<_, _>>()?;
+    tested += chain.len();
+    let mut sims: HashMap<(usize, usize), Mat3> = HashMap::new();
+    for (i, j, r) in results {
+        if let Some((t, c)) = r {
+            counts.insert((i, j), c);
+            sims.insert((i, j), sim_to_mat(&t));
+        }
+    }
+    if !cfg.all_pairs {
+        // Predict each frame's position by chaining similarities (frame i -> frame 0),
+        // then test pairs whose predicted centres are closer than 0.8 frame diagonals.
+        let mut to0: Vec<Option<Mat3>> = vec![None; n];
+        to0[0] = Some(Mat3::identity());
+        for i in 1..n {
+            // maps frame i -> frame i-1 is the inverse of (i-1 -> i).
+            if let (Some(prev), Some(s)) = (to0[i - 1], sims.get(&(i - 1, i))) {
+                to0[i] = s.try_inverse().map(|inv| prev * inv);
+            } else {
+                to0[i] = None;
+            }
+        }
+        let centre = |f: &FrameData| Vec2::new(0.5 * f64::from(f.width), 0.5 * f64::from(f.height));
+        let diag = frames.first().map(|f| f64::from(f.width).hypot(f64::from(f.height))).unwrap_or(1.0);
+        let mut extra = Vec::new();
+        for i in 0..n {
+            for j in i + 2..n {
+                if let (Some(a), Some(b)) = (to0[i], to0[j]) {
+                    let pa = Homography(a).apply(centre(&frames[i]));
+                    let pb = Homography(b).apply(centre(&frames[j]));
+                    if let (Some(pa), Some(pb)) = (pa, pb) {
+                        if (pa - pb).norm() < 0.8 * diag {
+                            extra.push((i, j));
+                        }
+                    }
+                } else if j - i <= 3 {
+                    extra.push((i, j)); // chain broken: at least try near neighbours
+                }
+            }
+        }
+        progress.stage("loop closure", extra.len() as u64);
+        let results: Vec<_> = extra
+            .par_iter()
+            .map(|&(i, j)| {
+                let r = coarse_pair(&frames[i], &frames[j], cfg);
+                progress.advance(1);
+                r.map(|r| (i, j, r))
+            })
+            .collect::<Result<_, _>>()?;
+        tested += extra.len();
+        for (i, j, r) in results {
+            if let Some((_, c)) = r {
+                counts.insert((i, j), c);
+            }
+        }
+    }
+    progress.finish();
+    let kept = filter_connectivity(n, &counts);
+    Ok((Connectivity { frames: n, counts, kept }, tested))
+}
+
+/// Threshold at the 50th percentile of overlapping pairs, then a 5x5 median filter of
+/// the binary map (paper 3.1.3). Consecutive frames that matched are always kept: the
+/// percentile is meant to remove weak loop closures, not the time chain.
+pub fn filter_connectivity(n: usize, counts: &HashMap<(usize, usize), usize>) -> BTreeSet<(usize, usize)> {
+    let mut values: Vec<usize> = counts.values().copied().collect();
+    values.sort_unstable();
+    let thr = values.get(values.len() / 2).copied().unwrap_or(0);
+    let on = |i: usize, j: usize| -> bool {
+        let (a, b) = if i < j { (i, j) } else { (j, i) };
+        counts.get(&(a, b)).is_some_and(|c| *c >= thr)
+    };
+    let mut kept = BTreeSet::new();
+    for (&(i, j), _) in counts.iter() {
+        // Median of the 5x5 neighbourhood of (i, j) in the symmetric binary map.
+        let mut ones = 0;
+        let mut total = 0;
+        for di in -2i64..=2 {
+            for dj in -2i64..=2 {
+                let (a, b) = (i as i64 + di, j as i64 + dj);
+                if a < 0 || b < 0 || a >= n as i64 || b >= n as i64 || a == b {
+                    continue;
+                }
+                total += 1;
+                ones += usize::from(on(a as usize, b as usize));
+            }
+        }
+        if 2 * ones >= total || j == i + 1 {
+            kept.insert((i, j));
+        }
+    }
+    kept
+}
+
+/// Largest connected component of the kept pairs.
+fn largest_component(n: usize, pairs: &BTreeSet<(usize, usize)>) -> Vec<usize> {
+    let mut adj = vec![Vec::new(); n];
+    for &(i, j) in pairs {
+        adj[i].push(j);
+        adj[j].push(i);
+    }
+    let mut seen = vec![false; n];
+    let mut best = Vec::new();
+    for s in 0..n {
+        if seen[s] {
+            continue;
+        }
+        let mut comp = Vec::new();
+        let mut q = VecDeque::from([s]);
+        seen[s] = true;
+        while let Some(v) = q.pop_front() {
+            comp.push(v);
+            for &w in &adj[v] {
+                if !seen[w] {
+                    seen[w] = true;
+                    q.push_back(w);
+                }
+            }
+        }
+        if comp.len() > best.len() {
+            best = comp;
+        }
+    }
+    best.sort_unstable();
+    best
+}
+
+/// Verified fine correspondences between frames a and b (full-resolution pixels).
+fn fine_pair(a: &FrameData, b: &FrameData, cfg: &AlignConfig) -> Result<Option<(Vec<[f64; 2]>, Vec<[f64; 2]>, Mat3)>, AlignError> {
+    let m = match_one_to_one(&a.fine, &b.fine, 0.8)?;
+    let min = cfg.fine_min_inliers;
+    if m.len() < min {
+        return Ok(None);
+    }
+    let long = f64::from(a.width.max(a.height));
+    let thr = cfg.fine_inlier_px * long / 3840.0;
+    let src = pts(&a.fine, m.iter().map(|x| x.0));
+    let dst = pts(&b.fine, m.iter().map(|x| x.1));
+    let Some((h, inl)) = estimate_homography(&src, &dst, thr)? else { return Ok(None) };
+    let keep: Vec<usize> = (0..inl.len()).filter(|&k| inl[k]).collect();
+    if keep.len() < min {
+        return Ok(None);
+    }
+    Ok(Some((keep.iter().map(|&k| src[k]).collect(), keep.iter().map(|&k| dst[k]).collect(), svbrdf_core::geometry::mat3_from_rows(&h))))
+}
+
+/// Sub-frame layout of one frame: rectangles with overlap, and the core cells.
+struct Grid {
+    cols: usize,
+    rows: usize,
+    w: f64,
+    h: f64,
+    ox: f64,
+    oy: f64,
+}
+
+impl Grid {
+    fn new(width: u32, height: u32, cfg: &AlignConfig) -> Self {
+        let (w, h) = (f64::from(width), f64::from(height));
+        let (cols, rows) = match cfg.subframes {
+            Some((c, r)) => (c as usize, r as usize),
+            None => {
+                // The paper's 5 x 11 at 2160 x 3840 (portrait), at least 3 x 5.
+                let (short, long) = (w.min(h), w.max(h));
+                let a = ((5.0 * short / 2160.0).round() as usize).max(3);
+                let b = ((11.0 * long / 3840.0).round() as usize).max(5);
+                if h >= w { (a, b) } else { (b, a) }
+            }
+        };
+        // Paper: 25 and 22 px overlap at 2160 x 3840.
+        let s = w.max(h) / 3840.0;
+        Self { cols, rows, w, h, ox: (25.0 * s).max(4.0), oy: (22.0 * s).max(4.0) }
+    }
+
+    fn len(&self) -> usize {
+        self.cols * self.rows
+    }
+
+    fn cell(&self, p: Vec2) -> usize {
+        let c = (((p.x + 0.5) / self.w * self.cols as f64).floor() as isize).clamp(0, self.cols as isize - 1) as usize;
+        let r = (((p.y + 0.5) / self.h * self.rows as f64).floor() as isize).clamp(0, self.rows as isize - 1) as usize;
+        r * self.cols + c
+    }
+
+    /// Rectangle `[x0, y0, x1, y1]` of a sub-frame including its overlap.
+    fn rect(&self, k: usize) -> [f64; 4] {
+        let (c, r) = ((k % self.cols) as f64, (k / self.cols) as f64);
+        let (cw, ch) = (self.w / self.cols as f64, self.h / self.rows as f64);
+        [
+            (c * cw - 0.5 - self.ox).max(-0.5),
+            (r * ch - 0.5 - self.oy).max(-0.5),
+            ((c + 1.0) * cw - 0.5 + self.ox).min(self.w - 0.5),
+            ((r + 1.0) * ch - 0.5 + self.oy).min(self.h - 0.5),
+        ]
+    }
+
+    /// Sample points on the shared borders of neighbouring cells: (cell a, cell b, point).
+    fn seams(&self) -> Vec<(usize, usize, Vec2)> {
+        let (cw, ch) = (self.w / self.cols as f64, self.h / self.rows as f64);
+        let mut out = Vec::new();
+        for r in 0..self.rows {
+            for c in 0..self.cols {
+                let k = r * self.cols + c;
+                for t in [0.1, 0.5, 0.9] {
+                    if c + 1 < self.cols {
+                        let x = (c + 1) as f64 * cw - 0.5;
+                        for dx in [-self.ox, 0.0, self.ox] {
+                            out.push((k, k + 1, Vec2::new(x + dx, (r as f64 + t) * ch - 0.5)));
+                        }
+                    }
+                    if r + 1 < self.rows {
+                        let y = (r + 1) as f64 * ch - 0.5;
+                        for dy in [-self.oy, 0.0, self.oy] {
+                            out.push((k, k + self.cols, Vec2::new((c as f64 + t) * cw - 0.5, y + dy)));
+                        }
+                    }
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Normalisation of frame pixels for conditioning: centred, long side = 2.
+fn normaliser(w: u32, h: u32) -> Mat3 {
+    let s = 2.0 / f64::from(w.max(h));
+    Mat3::new(s, 0.0, -s * 0.5 * (f64::from(w) - 1.0), 0.0, s, -s * 0.5 * (f64::from(h) - 1.0), 0.0, 0.0, 1.0)
+}
+
+/// Coarse to fine registration of the decoded frames.
+pub fn register(
+    decoded: Vec<FrameData>,
+    rf: &ReferenceFrame,
+    ref_features: Option<&ReferenceFeatures>,
+    cfg: &AlignConfig,
+    progress: &dyn Progress,
+    lap: &mut dyn FnMut(&str),
+) -> Result<Registration, AlignError> {
+    let mut drops = DropCounts { decoded: decoded.len(), ..DropCounts::default() };
+    // Blur selection.
+    let metrics: Vec<f64> = decoded.iter().map(|f| f.blur).collect();
+    let blurry: BTreeSet<usize> = blurry_frames(&metrics, cfg.blur_sigmas).into_iter().collect();
+    drops.blurry = blurry.len();
+    let frames: Vec<FrameData> = decoded.into_iter().enumerate().filter(|(i, _)| !blurry.contains(i)).map(|(_, f)| f).collect();
+    if frames.len() < 2 {
+        return Err(AlignError::Connect(format!("only {} sharp frame(s) out of {}: need at least 2", frames.len(), drops.decoded)));
+    }
+    let (width, height) = (frames[0].width, frames[0].height);
+    let intrinsics = Intrinsics::from_fov(width, height, cfg.camera.fov_deg)?;
+
+    // Coarse alignment and the connectivity map.
+    let (connectivity, coarse_tested) = coarse(&frames, cfg, progress)?;
+    let comp = largest_component(frames.len(), &connectivity.kept);
+    drops.disconnected = frames.len() - comp.len();
+    lap("coarse alignment");
+    if comp.len() < 2 {
+        return Err(AlignError::Connect(format!(
+            "frames do not connect: {} of {} sharp frames matched none of the others (repetitive or featureless texture?)",
+            frames.len() - comp.len(),
+            frames.len()
+        )));
+    }
+    let in_comp: HashMap<usize, usize> = comp.iter().enumerate().map(|(k, &i)| (i, k)).collect();
+    let pairs: Vec<(usize, usize)> = connectivity
+        .kept
+        .iter()
+        .filter(|(i, j)| in_comp.contains_key(i) && in_comp.contains_key(j))
+        .map(|&(i, j)| (in_comp[&i], in_comp[&j]))
+        .collect();
+    let frames: Vec<FrameData> = comp.iter().map(|&i| frames[i].clone()).collect();
+    let n = frames.len();
+
+    // Fine matches between connected frames.
+    progress.stage("fine matching", (pairs.len() + n) as u64);
+    let fine: Vec<_> = pairs
+        .par_iter()
+        .map(|&(i, j)| {
+            let r = fine_pair(&frames[i], &frames[j], cfg);
+            progress.advance(1);
+            r.map(|r| (i, j, r))
+        })
+        .collect::<Result<_, _>>()?;
+    // Plane cm per frame pixel at a typical capture height (60% of the reference's).
+    let cm_per_px = rf.height.clamp(5.0, 50.0) * 0.6 / intrinsics.fx;
+    // Fine matches with the reference photo: absolute anchors (beyond the paper).
+    let anchors: Vec<Vec<([f64; 2], Vec2)>> = frames
+        .par_iter()
+        .map(|f| {
+            let out = match ref_features {
+                None => Ok(Vec::new()),
+                Some(rfe) => match_one_to_one(&f.fine, &rfe.features, 0.8).and_then(|m| {
+                    if m.len() < cfg.fine_min_inliers {
+                        return Ok(Vec::new());
+                    }
+                    let src = pts(&f.fine, m.iter().map(|x| x.0));
+                    let dst: Vec<[f64; 2]> = m.iter().map(|x| [rfe.plane[x.1 as usize].x, rfe.plane[x.1 as usize].y]).collect();
+                    // Verify on the plane: a homography frame px -> plane cm, with the
+                    // inlier distance converted through a rough frame scale.
+                    let thr_px = cfg.fine_inlier_px * f64::from(f.width.max(f.height)) / 3840.0;
+                    let thr_cm = thr_px * cm_per_px;
+                    Ok(match estimate_homography(&src, &dst, thr_cm)? {
+                        Some((_, inl)) if inl.iter().filter(|v| **v).count() >= cfg.fine_min_inliers / 2 => (0..src.len())
+                            .filter(|&k| inl[k])
+                            .map(|k| (src[k], Vec2::new(dst[k][0], dst[k][1])))
+                            .collect(),
+                        _ => Vec::new(),
+                    })
+                }),
+            };
+            progress.advance(1);
+            out
+        })
+        .collect::<Result<_, svbrdf_cv::CvError>>()?;
+    progress.finish();
+    lap("fine matching");
+
+    // Marker anchors (eqs. 5-6).
+    let world_markers: HashMap<i32, [Vec2; 4]> = rf.markers.iter().map(|(id, c)| (*id, *c)).collect();
+    let marker_anchors: Vec<Vec<(Vec2, Vec2)>> = frames
+        .iter()
+        .map(|f| {
+            f.markers
+                .iter()
+                .filter_map(|m| world_markers.get(&m.id).map(|w| (0..4).map(|k| (m.corners[k], w[k])).collect::<Vec<_>>()))
+                .flatten()
+                .collect()
+        })
+        .collect();
+    let with_markers = marker_anchors.iter().filter(|a| !a.is_empty()).count();
+    let reference_anchored = anchors.iter().filter(|a| !a.is_empty()).count();
+
+    // Initial plane_from_pixel homography per frame: from its own absolute anchors,
+    // else propagated from a neighbour through the pairwise homography.
+    let mut init: Vec<Option<Mat3>> = (0..n)
+        .map(|i| {
+            let mut src: Vec<Vec2> = anchors[i].iter().map(|(p, _)| Vec2::new(p[0], p[1])).collect();
+            let mut dst: Vec<Vec2> = anchors[i].iter().map(|(_, x)| *x).collect();
+            for (p, x) in &marker_anchors[i] {
+                src.push(*p);
+                dst.push(*x);
+            }
+            if src.len() >= 8 {
+                Homography::from_correspondences(&src, &dst).ok().map(|h| h.0)
+            } else {
+                None
+            }
+        })
+        .collect();
+    let mut pair_h: HashMap<(usize, usize), Mat3> = HashMap::new();
+    let mut fine_pairs = 0;
+    for (i, j, r) in &fine {
+        if let Some((_, _, h)) = r {
+            pair_h.insert((*i, *j), *h);
+            fine_pairs += 1;
+        }
+    }
+    let mut changed = true;
+    while changed {
+        changed = false;
+        for (&(i, j), h) in &pair_h {
+            // h maps i px -> j px.
+            if init[i].is_none() {
+                if let Some(hj) = init[j] {
+                    init[i] = Some(hj * h);
+                    changed = true;
+                }
+            }
+            if init[j].is_none() {
+                if let (Some(hi), Some(inv)) = (init[i], h.try_inverse()) {
+                    init[j] = Some(hi * inv);
+                    changed = true;
+                }
+            }
+        }
+    }
+    let registered: Vec<usize> = (0..n).filter(|&i| init[i].is_some()).collect();
+    drops.unregistered = n - registered.len();
+    if registered.is_empty() {
+        return Err(AlignError::Connect(
+            "no frame could be tied to the plane: no markers seen and no matches with the reference photo".into(),
+        ));
+    }
+
+    // Global solve over all sub-frames of registered frames.
+    let grid = Grid::new(width, height, cfg);
+    let nrm = normaliser(width, height);
+    let nrm_inv = nrm.try_inverse().unwrap_or_else(Mat3::identity);
+    let slot: HashMap<usize, usize> = registered.iter().enumerate().map(|(k, &i)| (i, k)).collect();
+    let sub = |frame: usize, p: Vec2| slot[&frame] * grid.len() + grid.cell(p);
+    let norm = |p: Vec2| Homography(nrm).apply(p).unwrap_or(p);
+    let mut init_blocks = Vec::with_capacity(registered.len() * grid.len());
+    for &i in &registered {
+        let h = init[i].unwrap_or_else(Mat3::identity) * nrm_inv;
+        for _ in 0..grid.len() {
+            init_blocks.push(h);
+        }
+    }
+    let mut cons = Vec::new();
+    for (i, j, r) in &fine {
+        let (Some((a, b, _)), true, true) = (r, slot.contains_key(i), slot.contains_key(j)) else { continue };
+        for (p, q) in a.iter().zip(b) {
+            let (p, q) = (Vec2::new(p[0], p[1]), Vec2::new(q[0], q[1]));
+            cons.push(Constraint::Pair { a: sub(*i, p), p: norm(p), b: sub(*j, q), q: norm(q), w: 1.0 });
+        }
+    }
+    for &i in &registered {
+        for (p, x) in &anchors[i] {
+            let p = Vec2::new(p[0], p[1]);
+            cons.push(Constraint::Anchor { a: sub(i, p), p: norm(p), x: *x, w: 1.0 });
+        }
+        for (p, x) in &marker_anchors[i] {
+            cons.push(Constraint::Anchor { a: sub(i, *p), p: norm(*p), x: *x, w: 4.0 });
+        }
+        for (a, b, p) in grid.seams() {
+            let base = slot[&i] * grid.len();
+            cons.push(Constraint::Pair { a: base + a, p: norm(p), b: base + b, q: norm(p), w: cfg.overlap_weight });
+        }
+    }
+    // Residual scale: about two frame pixels on the plane.
+    let huber = 2.0 * cm_per_px;
+    progress.stage("global solve", 1);
+    let (solved, report) = solve(&init_blocks, &cons, huber, cfg.iterations)?;
+    progress.finish();
+    lap("global solve");
+
+    // Back to pixel coordinates, poses from the centre sub-frame, region check.
+    let centre_cell = grid.cell(Vec2::new(0.5 * (f64::from(width) - 1.0), 0.5 * (f64::from(height) - 1.0)));
+    let region = rf.marker_region().expanded(cfg.camera.marker_size_cm);
+    let mut out_frames = Vec::new();
+    let mut mappings = Vec::new();
+    let mut poses = Vec::new();
+    for (k, &i) in registered.iter().enumerate() {
+        let blocks: Vec<([f64; 4], Mat3)> = (0..grid.len())
+            .map(|c| {
+                let h = solved[k * grid.len() + c] * nrm;
+                (grid.rect(c), h / h[(2, 2)])
+            })
+            .collect();
+        let centre_h = blocks[centre_cell].1;
+        let Some(pose) = centre_h.try_inverse().and_then(|inv| pose_from_homography(&intrinsics, &inv)) else {
+            drops.unregistered += 1;
+            continue;
+        };
+        if !region.contains(Vec2::new(pose.centre.x, pose.centre.y)) || !blocks.iter().all(|b| b.1.iter().all(|v| v.is_finite())) {
+            drops.outside += 1;
+            continue;
+        }
+        out_frames.push(frames[i].clone());
+        mappings.push(blocks);
+        poses.push(pose);
+    }
+    drops.kept = out_frames.len();
+    if out_frames.is_empty() {
+        return Err(AlignError::Connect("every frame's camera pose fell outside the marker boundary".into()));
+    }
+    Ok(Registration {
+        frames: out_frames,
+        mappings,
+        poses,
+        intrinsics,
+        drops,
+        connectivity,
+        coarse_tested,
+        fine_pairs,
+        reference_anchored,
+        with_markers,
+        solve: report,
+    })
+}

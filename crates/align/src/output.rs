@@ -1,0 +1,193 @@
+//! Writing the registered capture and the pictures a person wants to look at: the
+//! average-colour panorama, the camera and flash trajectory, and the connectivity map.
+
+use std::path::Path;
+
+use svbrdf_core::capture::{Frame, FrameMapping, PreparedMapping, RegisteredCapture, Source, SourceKind, SubFrame, CAPTURE_FILE};
+use svbrdf_core::color::srgb_to_linear;
+use svbrdf_core::fsutil::{write_json, StagingDir};
+use svbrdf_core::geometry::{mat3_to_rows, Vec2, Vec3};
+use svbrdf_core::image::ImageF32;
+use svbrdf_core::maps::{write_png, Encoding, PngDepth};
+use svbrdf_core::plane::PlaneGrid;
+
+use crate::matching::Registration;
+use crate::reference::ReferenceFrame;
+use crate::{AlignConfig, AlignError, AlignInputs, AlignSummary, Progress};
+
+/// File names inside an alignment output folder.
+pub const PANORAMA: &str = "panorama.png";
+/// Trajectory picture.
+pub const TRAJECTORY: &str = "trajectory.png";
+/// Connectivity picture.
+pub const CONNECTIVITY: &str = "connectivity.png";
+/// Summary and settings.
+pub const SUMMARY: &str = "align.json";
+
+fn dot(img: &mut ImageF32, x: f64, y: f64, r: f64, rgb: [f32; 3]) {
+    let (x0, x1) = ((x - r).floor().max(0.0) as usize, (x + r).ceil().max(0.0) as usize);
+    let (y0, y1) = ((y - r).floor().max(0.0) as usize, (y + r).ceil().max(0.0) as usize);
+    for yy in y0..=y1.min(img.height.saturating_sub(1)) {
+        for xx in x0..=x1.min(img.width.saturating_sub(1)) {
+            if (xx as f64 - x).hypot(yy as f64 - y) <= r {
+                img.pixel_mut(xx, yy).copy_from_slice(&rgb);
+            }
+        }
+    }
+}
+
+/// Write everything into `out` (atomically).
+#[allow(clippy::too_many_arguments)]
+pub fn write(
+    inputs: &AlignInputs,
+    cfg: &AlignConfig,
+    rf: &ReferenceFrame,
+    reg: Registration,
+    out: &Path,
+    overwrite: bool,
+    mut timings: Vec<(String, f64)>,
+    progress: &dyn Progress,
+) -> Result<AlignSummary, AlignError> {
+    let t0 = std::time::Instant::now();
+    let staging = StagingDir::new(out, overwrite)?;
+    let dir = staging.path();
+    let region = cfg.region.unwrap_or_else(|| rf.marker_region());
+    // Default resolution: half of the frames' median sampling density on the plane.
+    let mut heights: Vec<f64> = reg.poses.iter().map(|p| p.centre.z).collect();
+    heights.sort_by(f64::total_cmp);
+    let median_h = heights[heights.len() / 2];
+    let px_per_cm = cfg.px_per_cm.unwrap_or_else(|| (0.5 * reg.intrinsics.fx / median_h).max(1.0).round());
+
+    let video = std::path::absolute(&inputs.video).unwrap_or_else(|_| inputs.video.clone());
+    let mut cap = RegisteredCapture::new("svbrdf align", region, px_per_cm);
+    cap.sources.push(Source { kind: SourceKind::Video, path: video.to_string_lossy().into_owned(), encoding: Encoding::Srgb, stream: 0 });
+    let offset = Vec3::from(cfg.camera.flash_offset_cm);
+    for (k, ((f, m), pose)) in reg.frames.iter().zip(&reg.mappings).zip(&reg.poses).enumerate() {
+        cap.frames.push(Frame {
+            id: k as u32,
+            source: 0,
+            frame_index: Some(f.index),
+            image: None,
+            time_s: Some(f.time_s),
+            width: f.width,
+            height: f.height,
+            mapping: FrameMapping::Homographies {
+                subframes: m.iter().map(|(rect, h)| SubFrame { rect: *rect, plane_from_pixel: mat3_to_rows(h) }).collect(),
+            },
+            camera_position: pose.centre.into(),
+            light_position: pose.camera_to_world(offset).into(),
+        });
+    }
+    cap.save(dir)?;
+
+    // Average-colour panorama (linear average, shown in sRGB) at up to 400 px.
+    progress.stage("pictures", 3);
+    let pano_res = (400.0 / region.width().max(region.height())).min(px_per_cm);
+    let grid = PlaneGrid::new(region, pano_res)?;
+    let mut sum = ImageF32::new(grid.width, grid.height, 3);
+    let mut count = vec![0u32; grid.len()];
+    for (f, frame) in reg.frames.iter().zip(&cap.frames) {
+        let pm = PreparedMapping::new(frame)?;
+        let s = f.thumb.width as f64 / f64::from(f.width);
+        for r in 0..grid.height {
+            for c in 0..grid.width {
+                if let Some(p) = pm.plane_to_pixel(grid.pixel_centre(c, r)) {
+                    let (tx, ty) = (((p.x + 0.5) * s - 0.5).round(), ((p.y + 0.5) * s - 0.5).round());
+                    if tx >= 0.0 && ty >= 0.0 && (tx as usize) < f.thumb.width && (ty as usize) < f.thumb.height {
+                        let px = f.thumb.pixel(tx as usize, ty as usize);
+                        let dst = sum.pixel_mut(c, r);
+                        for ch in 0..3 {
+                            dst[ch] += srgb_to_linear(f64::from(px[ch]) / 255.0) as f32;
+                        }
+                        count[r * grid.width + c] += 1;
+                    }
+                }
+            }
+        }
+    }
+    let mut pano = sum.clone();
+    for (i, n) in count.iter().enumerate() {
+        for ch in 0..3 {
+            pano.data[i * 3 + ch] = if *n > 0 { sum.data[i * 3 + ch] / *n as f32 } else { 0.0 };
+        }
+    }
+    let meta = |what: &str| vec![("map", what.to_string()), ("px_per_cm", pano_res.to_string())];
+    write_png(&dir.join(PANORAMA), &pano, Encoding::Srgb, PngDepth::Eight, &meta("average_colour_panorama"))?;
+    progress.advance(1);
+
+    // Trajectory over a dimmed panorama: cameras blue, flashes yellow, markers red.
+    let mut traj = pano.clone();
+    traj.data.iter_mut().for_each(|v| *v *= 0.5);
+    for pose in &reg.poses {
+        let c = grid.to_pixel(Vec2::new(pose.centre.x, pose.centre.y));
+        dot(&mut traj, c.x, c.y, 2.0, [0.1, 0.3, 1.0]);
+        let l = pose.camera_to_world(offset);
+        let lp = grid.to_pixel(Vec2::new(l.x, l.y));
+        dot(&mut traj, lp.x, lp.y, 1.5, [1.0, 0.85, 0.1]);
+    }
+    for (_, corners) in &rf.markers {
+        for p in corners {
+            let q = grid.to_pixel(*p);
+            dot(&mut traj, q.x, q.y, 2.0, [1.0, 0.1, 0.1]);
+        }
+    }
+    write_png(&dir.join(TRAJECTORY), &traj, Encoding::Srgb, PngDepth::Eight, &meta("camera_blue_flash_yellow_markers_red"))?;
+    progress.advance(1);
+
+    // Connectivity map: grey = tested and matched, white = kept after filtering.
+    let n = reg.connectivity.frames.max(1);
+    let mut conn = ImageF32::new(n, n, 3);
+    let maxc = reg.connectivity.counts.values().copied().max().unwrap_or(1) as f32;
+    for (&(i, j), &c) in &reg.connectivity.counts {
+        let v = 0.15 + 0.45 * c as f32 / maxc;
+        for (a, b) in [(i, j), (j, i)] {
+            conn.pixel_mut(a, b).copy_from_slice(&[v, v, v]);
+        }
+    }
+    for &(i, j) in &reg.connectivity.kept {
+        for (a, b) in [(i, j), (j, i)] {
+            conn.pixel_mut(a, b).copy_from_slice(&[1.0, 1.0, 1.0]);
+        }
+    }
+    write_png(&dir.join(CONNECTIVITY), &conn, Encoding::Linear, PngDepth::Eight, &meta("connectivity_map"))?;
+    progress.advance(1);
+    progress.finish();
+    timings.push(("write".into(), t0.elapsed().as_secs_f64()));
+
+    let mut summary = AlignSummary {
+        out: out.to_path_buf(),
+        frames: reg.drops.clone(),
+        coarse_pairs_tested: reg.coarse_tested,
+        connected_pairs: reg.connectivity.kept.len(),
+        fine_pairs: reg.fine_pairs,
+        reference_anchored: reg.reference_anchored,
+        frames_with_markers: reg.with_markers,
+        solve_rms_cm: reg.solve.rms_after,
+        solve_median_cm: reg.solve.median_after,
+        unknowns: reg.solve.unknowns,
+        timings,
+    };
+    #[derive(serde::Serialize)]
+    struct Record<'a> {
+        settings: &'a AlignConfig,
+        video: String,
+        reference: String,
+        reference_tilt_deg: f64,
+        reference_height_cm: f64,
+        summary: &'a AlignSummary,
+    }
+    write_json(
+        &dir.join(SUMMARY),
+        &Record {
+            settings: cfg,
+            video: inputs.video.display().to_string(),
+            reference: inputs.reference.display().to_string(),
+            reference_tilt_deg: rf.tilt.to_degrees(),
+            reference_height_cm: rf.height,
+            summary: &summary,
+        },
+    )?;
+    summary.out = staging.commit()?;
+    debug_assert!(summary.out.join(CAPTURE_FILE).is_file());
+    Ok(summary)
+}

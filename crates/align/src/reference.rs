@@ -1,0 +1,214 @@
+//! The world frame from the reference photo (paper 3.1.1 and 3.1.6).
+//!
+//! The world origin is the plane point on the reference camera's optical axis; +z is
+//! the plane normal towards the camera; +x is the image's x axis projected onto the
+//! plane. Beyond the paper, the plane's tilt relative to the sensor is estimated from
+//! each marker's own pose (a homography from the known marker square, decomposed with
+//! the intrinsics), so a photo that is not perfectly levelled still gives the right
+//! frame; its height comes from the marker size and the field of view.
+
+use svbrdf_core::geometry::{Intrinsics, Mat3, Pose, Vec2, Vec3};
+use svbrdf_core::homography::Homography;
+use svbrdf_core::plane::Region;
+
+use crate::AlignError;
+
+/// A marker seen in an image: id and four corners in pixels (OpenCV order: the
+/// marker's top-left, top-right, bottom-right, bottom-left).
+#[derive(Debug, Clone, PartialEq)]
+pub struct MarkerObservation {
+    /// Marker id.
+    pub id: i32,
+    /// Corner pixels.
+    pub corners: [Vec2; 4],
+}
+
+/// What the reference photo fixes.
+#[derive(Debug, Clone)]
+pub struct ReferenceFrame {
+    /// The reference camera in world coordinates.
+    pub pose: Pose,
+    /// Its intrinsics.
+    pub intrinsics: Intrinsics,
+    /// Reference image pixel -> plane (cm).
+    pub plane_from_pixel: Homography,
+    /// Marker corners on the plane (cm), per id, OpenCV order.
+    pub markers: Vec<(i32, [Vec2; 4])>,
+    /// Tilt of the reference camera away from looking straight down, radians.
+    pub tilt: f64,
+    /// Height of the reference camera above the plane, cm.
+    pub height: f64,
+}
+
+impl ReferenceFrame {
+    /// The rectangle bounded by the markers' inner corners (the corner of each marker
+    /// closest to the centre of all four).
+    pub fn marker_region(&self) -> Region {
+        let all: Vec<Vec2> = self.markers.iter().flat_map(|(_, c)| c.iter().copied()).collect();
+        let centre = all.iter().fold(Vec2::zeros(), |a, p| a + p) / all.len().max(1) as f64;
+        let inner: Vec<Vec2> = self
+            .markers
+            .iter()
+            .filter_map(|(_, c)| c.iter().copied().min_by(|a, b| (a - centre).norm().total_cmp(&(b - centre).norm())))
+            .collect();
+        let fold = |f: fn(f64, f64) -> f64, init: f64, get: fn(&Vec2) -> f64| inner.iter().map(get).fold(init, f);
+        Region {
+            x_min: fold(f64::min, f64::MAX, |p| p.x),
+            x_max: fold(f64::max, f64::MIN, |p| p.x),
+            y_min: fold(f64::min, f64::MAX, |p| p.y),
+            y_max: fold(f64::max, f64::MIN, |p| p.y),
+        }
+    }
+}
+
+/// Pose of a square marker of side `size` (cm) in camera coordinates: rotation with
+/// columns (marker x, marker y, normal towards the camera) and the marker's
+/// bottom-left corner position. `None` if degenerate.
+pub fn marker_pose(k: &Intrinsics, corners: &[Vec2; 4], size: f64) -> Option<(Mat3, Vec3)> {
+    // Marker-local coordinates, y up: TL, TR, BR, BL.
+    let local = [Vec2::new(0.0, size), Vec2::new(size, size), Vec2::new(size, 0.0), Vec2::new(0.0, 0.0)];
+    let h = Homography::from_correspondences(&local, corners).ok()?;
+    let kinv = Mat3::new(1.0 / k.fx, 0.0, -k.cx / k.fx, 0.0, 1.0 / k.fy, -k.cy / k.fy, 0.0, 0.0, 1.0);
+    let m = kinv * h.0;
+    let (c1, c2, c3) = (m.column(0).into_owned(), m.column(1).into_owned(), m.column(2).into_owned());
+    let mut lambda = 2.0 / (c1.norm() + c2.norm());
+    if c3.z * lambda < 0.0 {
+        lambda = -lambda; // the marker must be in front of the camera
+    }
+    let r1 = c1 * lambda;
+    let r2 = c2 * lambda;
+    let t = c3 * lambda;
+    // Nearest rotation to [r1 r2 r1xr2].
+    let approx = Mat3::from_columns(&[r1, r2, r1.cross(&r2)]);
+    let svd = approx.svd(true, true);
+    let (u, vt) = (svd.u?, svd.v_t?);
+    let mut r = u * vt;
+    if r.determinant() < 0.0 {
+        r = -r;
+    }
+    Some((r, t))
+}
+
+/// Build the world frame from the markers found in the reference photo.
+pub fn reference_frame(k: &Intrinsics, found: &[MarkerObservation], marker_size: f64, expected: usize) -> Result<ReferenceFrame, AlignError> {
+    let mut ids: Vec<i32> = found.iter().map(|m| m.id).collect();
+    ids.sort_unstable();
+    ids.dedup();
+    if ids.len() < expected || found.len() != ids.len() {
+        return Err(AlignError::Markers(format!(
+            "the reference photo must show {expected} distinct markers; found ids {:?}",
+            found.iter().map(|m| m.id).collect::<Vec<_>>()
+        )));
+    }
+    // Plane normal and distance in camera coordinates, averaged over markers weighted
+    // by their size in the image (larger markers give steadier poses).
+    let mut n_sum = Vec3::zeros();
+    let mut d_sum = 0.0;
+    let mut w_sum = 0.0;
+    for m in found {
+        let (r, t) = marker_pose(k, &m.corners, marker_size)
+            .ok_or_else(|| AlignError::Markers(format!("marker {} in the reference photo is degenerate", m.id)))?;
+        let n = r.column(2).into_owned();
+        let w = (m.corners[0] - m.corners[2]).norm();
+        n_sum += n * w;
+        d_sum += -n.dot(&t) * w;
+        w_sum += w;
+    }
+    let n = n_sum.normalize();
+    let d = d_sum / w_sum;
+    if !(d > 0.0) || n.z >= -0.2 {
+        return Err(AlignError::Markers(format!(
+            "the markers in the reference photo give an implausible plane (distance {d:.2} cm, normal {:.2} {:.2} {:.2})",
+            n.x, n.y, n.z
+        )));
+    }
+    // Origin: the plane point on the optical axis.
+    let s = -d / n.z;
+    let origin = Vec3::new(0.0, 0.0, s);
+    let x = Vec3::new(1.0, 0.0, 0.0);
+    let ex = (x - n * n.dot(&x)).normalize();
+    let ey = n.cross(&ex);
+    // camera_from_world rotation has columns ex, ey, n.
+    let c_from_w = Mat3::from_columns(&[ex, ey, n]);
+    let w_from_c = c_from_w.transpose();
+    let centre = w_from_c * (-origin);
+    let kmat = Mat3::new(k.fx, 0.0, k.cx, 0.0, k.fy, k.cy, 0.0, 0.0, 1.0);
+    let pixel_from_plane = Homography(kmat * Mat3::from_columns(&[ex, ey, origin])).normalized();
+    let plane_from_pixel = pixel_from_plane
+        .inverse()
+        .ok_or_else(|| AlignError::Markers("reference plane homography is singular".into()))?;
+    let mut markers = Vec::new();
+    for m in found {
+        let c = m.corners.map(|p| plane_from_pixel.apply(p).unwrap_or_else(Vec2::zeros));
+        markers.push((m.id, c));
+    }
+    markers.sort_by_key(|m| m.0);
+    Ok(ReferenceFrame {
+        pose: Pose { rotation: w_from_c, centre },
+        intrinsics: *k,
+        plane_from_pixel,
+        markers,
+        tilt: (-n.z).clamp(-1.0, 1.0).acos(),
+        height: centre.z,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use svbrdf_core::geometry::{rot_x, Camera, RadialDistortion};
+
+    fn observe(cam: &Camera, corners: &[[f64; 3]; 4], id: i32) -> MarkerObservation {
+        MarkerObservation { id, corners: corners.map(|c| cam.project(Vec3::from(c)).unwrap()) }
+    }
+
+    fn square(x0: f64, y1: f64, s: f64) -> [[f64; 3]; 4] {
+        [[x0, y1, 0.0], [x0 + s, y1, 0.0], [x0 + s, y1 - s, 0.0], [x0, y1 - s, 0.0]]
+    }
+
+    #[test]
+    fn recovers_world_frame_from_tilted_photo() {
+        for tilt_deg in [0.0f64, 4.0, -7.0] {
+            let k = Intrinsics::from_fov(720, 1280, 70.0).unwrap();
+            let down = Mat3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0);
+            // Tilted about x: the optical axis no longer hits the origin exactly, so
+            // compare geometry that is frame-independent: distances between markers
+            // and marker size, plus the plane position of the principal point.
+            let cam = Camera {
+                intrinsics: k,
+                distortion: RadialDistortion::default(),
+                pose: Pose { rotation: rot_x(tilt_deg.to_radians()) * down, centre: Vec3::new(0.0, 0.0, 20.0) },
+            };
+            let s = 1.6;
+            let truth = [square(-5.6, 5.6, s), square(4.0, 5.6, s), square(4.0, -4.0, s), square(-5.6, -4.0, s)];
+            let found: Vec<_> = truth.iter().enumerate().map(|(i, c)| observe(&cam, c, i as i32)).collect();
+            let rf = reference_frame(&k, &found, s, 4).unwrap();
+            assert!((rf.tilt.to_degrees() - tilt_deg.abs()).abs() < 0.05, "tilt {}", rf.tilt.to_degrees());
+            // Marker side lengths and the distance between marker 0 and 2 in cm.
+            for (_, c) in &rf.markers {
+                assert!(((c[0] - c[1]).norm() - s).abs() < 1e-3);
+            }
+            let d = (rf.markers[0].1[0] - rf.markers[2].1[2]).norm();
+            let dt = (Vec2::new(-5.6, 5.6) - Vec2::new(5.6, -5.6)).norm();
+            assert!((d - dt).abs() < 2e-3, "{d} vs {dt}");
+            // Camera distance to the plane point on its axis.
+            let axis_hit = svbrdf_core::geometry::ray_plane(cam.pose.centre, cam.pose.rotation.column(2).into_owned()).unwrap();
+            let true_range = (Vec3::new(axis_hit.x, axis_hit.y, 0.0) - cam.pose.centre).norm();
+            assert!((rf.pose.centre.norm() - true_range).abs() < 1e-2);
+            if tilt_deg == 0.0 {
+                // Untilted: world frame equals the simulator's.
+                assert!((rf.markers[0].1[0] - Vec2::new(-5.6, 5.6)).norm() < 1e-3);
+                let r = rf.marker_region();
+                assert!((r.x_min + 4.0).abs() < 1e-3 && (r.y_max - 4.0).abs() < 1e-3);
+            }
+        }
+    }
+
+    #[test]
+    fn too_few_markers_names_ids() {
+        let k = Intrinsics::from_fov(720, 1280, 70.0).unwrap();
+        let m = MarkerObservation { id: 7, corners: [Vec2::new(0.0, 0.0), Vec2::new(10.0, 0.0), Vec2::new(10.0, 10.0), Vec2::new(0.0, 10.0)] };
+        let e = reference_frame(&k, &[m], 1.6, 4).unwrap_err().to_string();
+        assert!(e.contains("[7]"), "{e}");
+    }
+}
