@@ -24,7 +24,10 @@ pub fn blur_metric(grey: &[f32], width: usize, height: usize) -> f64 {
             col[r] = data[r * width + c];
         }
         col_fft.process(&mut col);
-        sum += col.iter().map(|z| f64::from(0.001 + z.norm()).log10()).sum::<f64>();
+        sum += col
+            .iter()
+            .map(|z| f64::from(0.001 + z.norm()).log10())
+            .sum::<f64>();
     }
     sum / (width * height) as f64
 }
@@ -38,7 +41,12 @@ pub fn blurry_frames(metrics: &[f64], sigmas: f64) -> Vec<usize> {
     }
     let mean = metrics.iter().sum::<f64>() / n;
     let sd = (metrics.iter().map(|m| (m - mean).powi(2)).sum::<f64>() / n).sqrt();
-    metrics.iter().enumerate().filter(|(_, m)| **m < mean - sigmas * sd).map(|(i, _)| i).collect()
+    metrics
+        .iter()
+        .enumerate()
+        .filter(|(_, m)| **m < mean - sigmas * sd)
+        .map(|(i, _)| i)
+        .collect()
 }
 
 #[cfg(test)]
@@ -46,7 +54,15 @@ mod tests {
     use super::*;
 
     fn pattern(w: usize, h: usize, blur: usize) -> Vec<f32> {
-        let sharp: Vec<f32> = (0..w * h).map(|i| if ((i % w) / 3 + (i / w) / 3) % 2 == 0 { 1.0 } else { 0.0 }).collect();
+        let sharp: Vec<f32> = (0..w * h)
+            .map(|i| {
+                if ((i % w) / 3 + (i / w) / 3) % 2 == 0 {
+                    1.0
+                } else {
+                    0.0
+                }
+            })
+            .collect();
         if blur == 0 {
             return sharp;
         }

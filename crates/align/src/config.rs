@@ -49,16 +49,32 @@ impl CameraDescription {
     /// Check the numbers.
     pub fn validate(&self) -> Result<(), AlignError> {
         if !(self.fov_deg > 0.0 && self.fov_deg < 180.0) {
-            return Err(AlignError::invalid("field of view", self.fov_deg, "degrees, in (0, 180)"));
+            return Err(AlignError::invalid(
+                "field of view",
+                self.fov_deg,
+                "degrees, in (0, 180)",
+            ));
         }
         if !(self.marker_size_cm > 0.0 && self.marker_size_cm.is_finite()) {
-            return Err(AlignError::invalid("marker size", self.marker_size_cm, "cm, > 0"));
+            return Err(AlignError::invalid(
+                "marker size",
+                self.marker_size_cm,
+                "cm, > 0",
+            ));
         }
         if self.frame_step == 0 {
             return Err(AlignError::invalid("frame step", 0, "at least 1"));
         }
-        if !self.flash_offset_cm.iter().all(|v| v.is_finite() && v.abs() < 50.0) {
-            return Err(AlignError::invalid("flash offset", format!("{:?}", self.flash_offset_cm), "cm, each |v| < 50"));
+        if !self
+            .flash_offset_cm
+            .iter()
+            .all(|v| v.is_finite() && v.abs() < 50.0)
+        {
+            return Err(AlignError::invalid(
+                "flash offset",
+                format!("{:?}", self.flash_offset_cm),
+                "cm, each |v| < 50",
+            ));
         }
         Ok(())
     }
@@ -97,6 +113,8 @@ pub struct AlignConfig {
     pub fine_min_inliers: usize,
     /// Sub-frame grid (columns, rows); default scales the paper's 5 x 11 at 2160 x 3840.
     pub subframes: Option<(u32, u32)>,
+    /// SIFT contrast threshold (OpenCV's default is 0.04; materials are often low-contrast).
+    pub sift_contrast: f64,
     /// Match every frame against the reference photo for absolute constraints.
     pub match_reference: bool,
     /// Weight of sub-frame agreement in their overlaps, relative to a feature match.
@@ -124,6 +142,7 @@ impl Default for AlignConfig {
             fine_inlier_px: 60.0,
             fine_min_inliers: 60,
             subframes: None,
+            sift_contrast: 0.02,
             match_reference: true,
             overlap_weight: 1.0,
             iterations: 8,
@@ -133,6 +152,12 @@ impl Default for AlignConfig {
 }
 
 impl AlignConfig {
+    /// A minimum inlier count given for the paper's image size (`base_area` pixels),
+    /// scaled with the square root of the actual area, never below 12.
+    pub fn scaled_min(base: usize, base_area: f64, area: f64) -> usize {
+        ((base as f64 * (area / base_area).sqrt()).round() as usize).clamp(12.min(base), base)
+    }
+
     /// Check the numbers.
     pub fn validate(&self) -> Result<(), AlignError> {
         self.camera.validate()?;
@@ -141,25 +166,49 @@ impl AlignConfig {
         }
         if let Some(p) = self.px_per_cm {
             if !(p > 0.0 && p <= 1000.0) {
-                return Err(AlignError::invalid("output resolution", p, "pixels per cm, in (0, 1000]"));
+                return Err(AlignError::invalid(
+                    "output resolution",
+                    p,
+                    "pixels per cm, in (0, 1000]",
+                ));
             }
         }
         if !(self.blur_sigmas > 0.0) {
-            return Err(AlignError::invalid("blur threshold", self.blur_sigmas, "standard deviations, > 0"));
+            return Err(AlignError::invalid(
+                "blur threshold",
+                self.blur_sigmas,
+                "standard deviations, > 0",
+            ));
         }
         if self.coarse_long_side < 64 || self.fine_long_side < 64 {
-            return Err(AlignError::invalid("image size for features", self.coarse_long_side.min(self.fine_long_side), "at least 64 px"));
+            return Err(AlignError::invalid(
+                "image size for features",
+                self.coarse_long_side.min(self.fine_long_side),
+                "at least 64 px",
+            ));
         }
         if self.coarse_features < 10 || self.fine_features < 10 {
-            return Err(AlignError::invalid("feature count", self.coarse_features.min(self.fine_features), "at least 10"));
+            return Err(AlignError::invalid(
+                "feature count",
+                self.coarse_features.min(self.fine_features),
+                "at least 10",
+            ));
         }
         if let Some((c, r)) = self.subframes {
             if c == 0 || r == 0 || c > 64 || r > 64 {
-                return Err(AlignError::invalid("sub-frame grid", format!("{c}x{r}"), "1 to 64 in each direction"));
+                return Err(AlignError::invalid(
+                    "sub-frame grid",
+                    format!("{c}x{r}"),
+                    "1 to 64 in each direction",
+                ));
             }
         }
         if !(0.0..0.5).contains(&self.highlight_radius) {
-            return Err(AlignError::invalid("highlight radius", self.highlight_radius, "a fraction of the long side in [0, 0.5)"));
+            return Err(AlignError::invalid(
+                "highlight radius",
+                self.highlight_radius,
+                "a fraction of the long side in [0, 0.5)",
+            ));
         }
         Ok(())
     }

@@ -48,36 +48,82 @@ fn unscale(mut f: Features, s: f64) -> Features {
     f
 }
 
-fn process(img: &ImageU8, index: u64, fps: f64, cfg: &AlignConfig, dict: Dictionary) -> Result<FrameData, AlignError> {
+fn process(
+    img: &ImageU8,
+    index: u64,
+    fps: f64,
+    cfg: &AlignConfig,
+    dict: Dictionary,
+) -> Result<FrameData, AlignError> {
     let long = img.width.max(img.height) as f64;
     let cs = (f64::from(cfg.coarse_long_side) / long).min(1.0);
     let fs = (f64::from(cfg.fine_long_side) / long).min(1.0);
-    let coarse_img = if cs < 1.0 { resize(img, cs)? } else { img.clone() };
+    let coarse_img = if cs < 1.0 {
+        resize(img, cs)?
+    } else {
+        img.clone()
+    };
     let grey: Vec<f32> = coarse_img
         .data
         .chunks_exact(3)
-        .map(|p| (0.299 * f32::from(p[0]) + 0.587 * f32::from(p[1]) + 0.114 * f32::from(p[2])) / 255.0)
+        .map(|p| {
+            (0.299 * f32::from(p[0]) + 0.587 * f32::from(p[1]) + 0.114 * f32::from(p[2])) / 255.0
+        })
         .collect();
     let blur = blur_metric(&grey, coarse_img.width, coarse_img.height);
     // Markers at up to 1920 px: large enough for sub-pixel corners, cheap to search.
     let ms = (1920.0 / long).min(1.0);
-    let marker_img = if ms < 1.0 { resize(img, ms)? } else { img.clone() };
+    let marker_img = if ms < 1.0 {
+        resize(img, ms)?
+    } else {
+        img.clone()
+    };
     let markers = detect_markers(&marker_img, dict)?
         .into_iter()
         .map(|m| MarkerObservation {
             id: m.id,
-            corners: m.corners.map(|c| Vec2::new((c[0] + 0.5) / ms - 0.5, (c[1] + 0.5) / ms - 0.5)),
+            corners: m
+                .corners
+                .map(|c| Vec2::new((c[0] + 0.5) / ms - 0.5, (c[1] + 0.5) / ms - 0.5)),
         })
         .collect();
     let exclude = |w: usize, h: usize| {
         let l = w.max(h) as f64;
-        Some([0.5 * (w as f64 - 1.0), 0.5 * (h as f64 - 1.0), cfg.highlight_radius * l])
+        Some([
+            0.5 * (w as f64 - 1.0),
+            0.5 * (h as f64 - 1.0),
+            cfg.highlight_radius * l,
+        ])
     };
-    let coarse = unscale(sift(&coarse_img, cfg.coarse_features, exclude(coarse_img.width, coarse_img.height))?, cs);
-    let fine_img = if fs < 1.0 { resize(img, fs)? } else { img.clone() };
-    let fine = unscale(sift(&fine_img, cfg.fine_features, exclude(fine_img.width, fine_img.height))?, fs);
+    let coarse = unscale(
+        sift(
+            &coarse_img,
+            cfg.coarse_features,
+            cfg.sift_contrast,
+            exclude(coarse_img.width, coarse_img.height),
+        )?,
+        cs,
+    );
+    let fine_img = if fs < 1.0 {
+        resize(img, fs)?
+    } else {
+        img.clone()
+    };
+    let fine = unscale(
+        sift(
+            &fine_img,
+            cfg.fine_features,
+            cfg.sift_contrast,
+            exclude(fine_img.width, fine_img.height),
+        )?,
+        fs,
+    );
     let ts = (480.0 / long).min(1.0);
-    let thumb = if ts < 1.0 { resize(img, ts)? } else { img.clone() };
+    let thumb = if ts < 1.0 {
+        resize(img, ts)?
+    } else {
+        img.clone()
+    };
     Ok(FrameData {
         index,
         time_s: index as f64 / fps.max(1e-9),
@@ -92,7 +138,12 @@ fn process(img: &ImageU8, index: u64, fps: f64, cfg: &AlignConfig, dict: Diction
 }
 
 /// Decode every `frame_step`-th frame and process batches in parallel.
-pub fn decode_frames(video: &Path, cfg: &AlignConfig, dict: Dictionary, progress: &dyn Progress) -> Result<Vec<FrameData>, AlignError> {
+pub fn decode_frames(
+    video: &Path,
+    cfg: &AlignConfig,
+    dict: Dictionary,
+    progress: &dyn Progress,
+) -> Result<Vec<FrameData>, AlignError> {
     let mut reader = VideoReader::open(video)?;
     let info = reader.info();
     let step = u64::from(cfg.camera.frame_step);
@@ -116,8 +167,10 @@ pub fn decode_frames(video: &Path, cfg: &AlignConfig, dict: Dictionary, progress
             batch.push((idx, f));
         }
         if batch.len() == batch_size || (done && !batch.is_empty()) {
-            let processed: Vec<Result<FrameData, AlignError>> =
-                batch.par_iter().map(|(i, img)| process(img, *i, info.fps, cfg, dict)).collect();
+            let processed: Vec<Result<FrameData, AlignError>> = batch
+                .par_iter()
+                .map(|(i, img)| process(img, *i, info.fps, cfg, dict))
+                .collect();
             for p in processed {
                 out.push(p?);
             }
@@ -130,7 +183,10 @@ pub fn decode_frames(video: &Path, cfg: &AlignConfig, dict: Dictionary, progress
     }
     progress.finish();
     if out.is_empty() {
-        return Err(AlignError::Video(format!("{}: no frames could be decoded", video.display())));
+        return Err(AlignError::Video(format!(
+            "{}: no frames could be decoded",
+            video.display()
+        )));
     }
     Ok(out)
 }

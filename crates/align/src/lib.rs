@@ -68,8 +68,16 @@ pub enum AlignError {
 
 impl AlignError {
     /// An out-of-range setting.
-    pub fn invalid(what: impl Into<String>, value: impl ToString, expected: impl Into<String>) -> Self {
-        Self::Invalid { what: what.into(), value: value.to_string(), expected: expected.into() }
+    pub fn invalid(
+        what: impl Into<String>,
+        value: impl ToString,
+        expected: impl Into<String>,
+    ) -> Self {
+        Self::Invalid {
+            what: what.into(),
+            value: value.to_string(),
+            expected: expected.into(),
+        }
     }
 }
 
@@ -155,29 +163,63 @@ impl Timer {
 }
 
 /// Run the geometry stage and write a registered capture into `out`.
-pub fn align(inputs: &AlignInputs, cfg: &AlignConfig, out: &Path, overwrite: bool, progress: &dyn Progress) -> Result<AlignSummary, AlignError> {
+pub fn align(
+    inputs: &AlignInputs,
+    cfg: &AlignConfig,
+    out: &Path,
+    overwrite: bool,
+    progress: &dyn Progress,
+) -> Result<AlignSummary, AlignError> {
     cfg.validate()?;
     let dict = svbrdf_cv::aruco::Dictionary::from_name(&cfg.camera.marker_dictionary)?;
     let mut timer = Timer(Vec::new(), Instant::now());
 
     // Reference photo and world frame.
     let ref_img = svbrdf_cv::read_image(&inputs.reference)?;
-    let ref_k = svbrdf_core::geometry::Intrinsics::from_fov(ref_img.width as u32, ref_img.height as u32, cfg.camera.fov_deg)?;
+    let ref_k = svbrdf_core::geometry::Intrinsics::from_fov(
+        ref_img.width as u32,
+        ref_img.height as u32,
+        cfg.camera.fov_deg,
+    )?;
     let found = svbrdf_cv::aruco::detect_markers(&ref_img, dict)?;
     let obs: Vec<reference::MarkerObservation> = found
         .iter()
-        .map(|m| reference::MarkerObservation { id: m.id, corners: m.corners.map(|c| svbrdf_core::geometry::Vec2::new(c[0], c[1])) })
+        .map(|m| reference::MarkerObservation {
+            id: m.id,
+            corners: m
+                .corners
+                .map(|c| svbrdf_core::geometry::Vec2::new(c[0], c[1])),
+        })
         .collect();
     let reference = reference::reference_frame(&ref_k, &obs, cfg.camera.marker_size_cm, 4)
-        .map_err(|e| AlignError::Markers(format!("{}: {e} (dictionary {})", inputs.reference.display(), dict.name())))?;
+        .map_err(|e| {
+            AlignError::Markers(format!(
+                "{}: {e} (dictionary {})",
+                inputs.reference.display(),
+                dict.name()
+            ))
+        })?;
     timer.lap("reference");
 
     // Frames: decode, blur metric, markers, features.
     let decoded = frames::decode_frames(&inputs.video, cfg, dict, progress)?;
     timer.lap("decode + features");
-    let ref_features = if cfg.match_reference { Some(matching::reference_features(&ref_img, &reference, cfg)?) } else { None };
+    let ref_features = if cfg.match_reference {
+        Some(matching::reference_features(&ref_img, &reference, cfg)?)
+    } else {
+        None
+    };
     timer.lap("reference features");
 
-    let result = matching::register(decoded, &reference, ref_features.as_ref(), cfg, progress, &mut |n| timer.lap(n))?;
-    output::write(inputs, cfg, &reference, result, out, overwrite, timer.0, progress)
+    let result = matching::register(
+        decoded,
+        &reference,
+        ref_features.as_ref(),
+        cfg,
+        progress,
+        &mut |n| timer.lap(n),
+    )?;
+    output::write(
+        inputs, cfg, &reference, result, out, overwrite, timer.0, progress,
+    )
 }

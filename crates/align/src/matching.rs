@@ -6,7 +6,9 @@ use rayon::prelude::*;
 use svbrdf_core::geometry::{Intrinsics, Mat3, Pose, Vec2};
 use svbrdf_core::homography::Homography;
 use svbrdf_core::image::ImageU8;
-use svbrdf_cv::features::{estimate_homography, estimate_similarity, match_one_to_one, resize, sift, Features};
+use svbrdf_cv::features::{
+    estimate_homography, estimate_similarity, match_one_to_one, resize, sift, Features,
+};
 
 use crate::blur::blurry_frames;
 use crate::config::AlignConfig;
@@ -23,14 +25,25 @@ pub struct ReferenceFeatures {
 }
 
 /// Reference-photo features for absolute anchoring of frames.
-pub fn reference_features(img: &ImageU8, rf: &ReferenceFrame, cfg: &AlignConfig) -> Result<ReferenceFeatures, AlignError> {
+pub fn reference_features(
+    img: &ImageU8,
+    rf: &ReferenceFrame,
+    cfg: &AlignConfig,
+) -> Result<ReferenceFeatures, AlignError> {
     let long = img.width.max(img.height) as f64;
     let s = (f64::from(cfg.fine_long_side) / long).min(1.0);
-    let small = if s < 1.0 { resize(img, s)? } else { img.clone() };
-    let mut f = sift(&small, cfg.fine_features * 2, None)?;
+    let small = if s < 1.0 {
+        resize(img, s)?
+    } else {
+        img.clone()
+    };
+    let mut f = sift(&small, cfg.fine_features * 2, cfg.sift_contrast, None)?;
     let mut plane = Vec::with_capacity(f.len());
     for p in &mut f.points {
-        let full = Vec2::new((f64::from(p[0]) + 0.5) / s - 0.5, (f64::from(p[1]) + 0.5) / s - 0.5);
+        let full = Vec2::new(
+            (f64::from(p[0]) + 0.5) / s - 0.5,
+            (f64::from(p[1]) + 0.5) / s - 0.5,
+        );
         plane.push(rf.plane_from_pixel.apply(full).unwrap_or_else(Vec2::zeros));
     }
     Ok(ReferenceFeatures { features: f, plane })
@@ -82,32 +95,55 @@ fn pts(f: &Features, idx: impl Iterator<Item = u32>) -> Vec<[f64; 2]> {
 }
 
 /// Similarity between two frames' coarse features: (2x3 matrix a -> b, inliers).
-fn coarse_pair(a: &FrameData, b: &FrameData, cfg: &AlignConfig) -> Result<Option<([[f64; 3]; 2], usize)>, AlignError> {
+fn coarse_pair(
+    a: &FrameData,
+    b: &FrameData,
+    cfg: &AlignConfig,
+) -> Result<Option<([[f64; 3]; 2], usize)>, AlignError> {
+    let long = f64::from(a.width.max(a.height));
+    let cs = (f64::from(cfg.coarse_long_side) / long).min(1.0);
+    let area = f64::from(a.width) * f64::from(a.height) * cs * cs;
+    let min = AlignConfig::scaled_min(cfg.coarse_min_inliers, 960.0 * 540.0, area);
     let m = match_one_to_one(&a.coarse, &b.coarse, 0.8)?;
-    if m.len() < cfg.coarse_min_inliers {
+    if std::env::var_os("SVBRDF_DEBUG").is_some() {
+        eprintln!(
+            "coarse {} {}: {} matches (min {min})",
+            a.index,
+            b.index,
+            m.len()
+        );
+    }
+    if m.len() < min {
         return Ok(None);
     }
-    let long = f64::from(a.width.max(a.height));
     let thr = cfg.coarse_inlier_px * long / 960.0;
     let src = pts(&a.coarse, m.iter().map(|x| x.0));
     let dst = pts(&b.coarse, m.iter().map(|x| x.1));
     Ok(estimate_similarity(&src, &dst, thr)?.and_then(|(t, inl)| {
         let n = inl.iter().filter(|v| **v).count();
-        (n >= cfg.coarse_min_inliers).then_some((t, n))
+        (n >= min).then_some((t, n))
     }))
 }
 
 fn sim_to_mat(t: &[[f64; 3]; 2]) -> Mat3 {
-    Mat3::new(t[0][0], t[0][1], t[0][2], t[1][0], t[1][1], t[1][2], 0.0, 0.0, 1.0)
+    Mat3::new(
+        t[0][0], t[0][1], t[0][2], t[1][0], t[1][1], t[1][2], 0.0, 0.0, 1.0,
+    )
 }
 
 /// Coarse alignment: consecutive pairs, then pairs whose predicted footprints overlap.
-fn coarse(frames: &[FrameData], cfg: &AlignConfig, progress: &dyn Progress) -> Result<(Connectivity, usize), AlignError> {
+fn coarse(
+    frames: &[FrameData],
+    cfg: &AlignConfig,
+    progress: &dyn Progress,
+) -> Result<(Connectivity, usize), AlignError> {
     let n = frames.len();
     let mut counts = HashMap::new();
     let mut tested = 0usize;
     let chain: Vec<(usize, usize)> = if cfg.all_pairs {
-        (0..n).flat_map(|i| (i + 1..n).map(move |j| (i, j))).collect()
+        (0..n)
+            .flat_map(|i| (i + 1..n).map(move |j| (i, j)))
+            .collect()
     } else {
         (0..n.saturating_sub(1)).map(|i| (i, i + 1)).collect()
     };
@@ -129,33 +165,43 @@ fn coarse(frames: &[FrameData], cfg: &AlignConfig, progress: &dyn Progress) -> R
         }
     }
     if !cfg.all_pairs {
-        // Predict each frame's position by chaining similarities (frame i -> frame 0),
-        // then test pairs whose predicted centres are closer than 0.8 frame diagonals.
-        let mut to0: Vec<Option<Mat3>> = vec![None; n];
-        to0[0] = Some(Mat3::identity());
+        // Predict each frame's position by chaining similarities within segments of
+        // the time chain (frame i -> first frame of its segment), then test pairs of
+        // the same segment whose predicted centres are closer than 0.8 frame
+        // diagonals. Where the chain breaks (blur, a fast jerk), every pair across the
+        // two segments is tested, so a break cannot split the capture by itself.
+        let mut to_seg: Vec<Mat3> = vec![Mat3::identity(); n];
+        let mut seg = vec![0usize; n];
         for i in 1..n {
-            // maps frame i -> frame i-1 is the inverse of (i-1 -> i).
-            if let (Some(prev), Some(s)) = (to0[i - 1], sims.get(&(i - 1, i))) {
-                to0[i] = s.try_inverse().map(|inv| prev * inv);
-            } else {
-                to0[i] = None;
+            match sims.get(&(i - 1, i)).and_then(|s| s.try_inverse()) {
+                Some(inv) => {
+                    to_seg[i] = to_seg[i - 1] * inv;
+                    seg[i] = seg[i - 1];
+                }
+                None => {
+                    to_seg[i] = Mat3::identity();
+                    seg[i] = seg[i - 1] + 1;
+                }
             }
         }
         let centre = |f: &FrameData| Vec2::new(0.5 * f64::from(f.width), 0.5 * f64::from(f.height));
-        let diag = frames.first().map(|f| f64::from(f.width).hypot(f64::from(f.height))).unwrap_or(1.0);
+        let diag = frames
+            .first()
+            .map(|f| f64::from(f.width).hypot(f64::from(f.height)))
+            .unwrap_or(1.0);
         let mut extra = Vec::new();
         for i in 0..n {
             for j in i + 2..n {
-                if let (Some(a), Some(b)) = (to0[i], to0[j]) {
-                    let pa = Homography(a).apply(centre(&frames[i]));
-                    let pb = Homography(b).apply(centre(&frames[j]));
-                    if let (Some(pa), Some(pb)) = (pa, pb) {
-                        if (pa - pb).norm() < 0.8 * diag {
-                            extra.push((i, j));
-                        }
+                if seg[i] != seg[j] {
+                    extra.push((i, j));
+                    continue;
+                }
+                let pa = Homography(to_seg[i]).apply(centre(&frames[i]));
+                let pb = Homography(to_seg[j]).apply(centre(&frames[j]));
+                if let (Some(pa), Some(pb)) = (pa, pb) {
+                    if (pa - pb).norm() < 0.8 * diag {
+                        extra.push((i, j));
                     }
-                } else if j - i <= 3 {
-                    extra.push((i, j)); // chain broken: at least try near neighbours
                 }
             }
         }
@@ -177,13 +223,29 @@ fn coarse(frames: &[FrameData], cfg: &AlignConfig, progress: &dyn Progress) -> R
     }
     progress.finish();
     let kept = filter_connectivity(n, &counts);
-    Ok((Connectivity { frames: n, counts, kept }, tested))
+    if std::env::var_os("SVBRDF_DEBUG").is_some() {
+        let mut c: Vec<_> = counts.iter().collect();
+        c.sort();
+        eprintln!("counts {c:?}");
+        eprintln!("kept {kept:?}");
+    }
+    Ok((
+        Connectivity {
+            frames: n,
+            counts,
+            kept,
+        },
+        tested,
+    ))
 }
 
 /// Threshold at the 50th percentile of overlapping pairs, then a 5x5 median filter of
 /// the binary map (paper 3.1.3). Consecutive frames that matched are always kept: the
 /// percentile is meant to remove weak loop closures, not the time chain.
-pub fn filter_connectivity(n: usize, counts: &HashMap<(usize, usize), usize>) -> BTreeSet<(usize, usize)> {
+pub fn filter_connectivity(
+    n: usize,
+    counts: &HashMap<(usize, usize), usize>,
+) -> BTreeSet<(usize, usize)> {
     let mut values: Vec<usize> = counts.values().copied().collect();
     values.sort_unstable();
     let thr = values.get(values.len() / 2).copied().unwrap_or(0);
@@ -207,6 +269,30 @@ pub fn filter_connectivity(n: usize, counts: &HashMap<(usize, usize), usize>) ->
             }
         }
         if 2 * ones >= total || j == i + 1 {
+            kept.insert((i, j));
+        }
+    }
+    // Beyond the paper: the filter can cut a short capture in two where the hand
+    // jerked. Every raw pair was verified by RANSAC, so add back the strongest raw
+    // pairs that join separate components (a maximum spanning forest over the rest).
+    let mut parent: Vec<usize> = (0..n).collect();
+    fn root(p: &mut [usize], mut i: usize) -> usize {
+        while p[i] != i {
+            p[i] = p[p[i]];
+            i = p[i];
+        }
+        i
+    }
+    for &(i, j) in &kept {
+        let (a, b) = (root(&mut parent, i), root(&mut parent, j));
+        parent[a] = b;
+    }
+    let mut raw: Vec<(&(usize, usize), &usize)> = counts.iter().collect();
+    raw.sort_by(|a, b| b.1.cmp(a.1).then(a.0.cmp(b.0)));
+    for (&(i, j), _) in raw {
+        let (a, b) = (root(&mut parent, i), root(&mut parent, j));
+        if a != b {
+            parent[a] = b;
             kept.insert((i, j));
         }
     }
@@ -246,10 +332,25 @@ fn largest_component(n: usize, pairs: &BTreeSet<(usize, usize)>) -> Vec<usize> {
     best
 }
 
+/// The fine minimum inlier count for this frame size.
+fn fine_min(f: &FrameData, cfg: &AlignConfig) -> usize {
+    let long = f64::from(f.width.max(f.height));
+    let fs = (f64::from(cfg.fine_long_side) / long).min(1.0);
+    AlignConfig::scaled_min(
+        cfg.fine_min_inliers,
+        3840.0 * 2160.0,
+        f64::from(f.width) * f64::from(f.height) * fs * fs,
+    )
+}
+
 /// Verified fine correspondences between frames a and b (full-resolution pixels).
-fn fine_pair(a: &FrameData, b: &FrameData, cfg: &AlignConfig) -> Result<Option<(Vec<[f64; 2]>, Vec<[f64; 2]>, Mat3)>, AlignError> {
+fn fine_pair(
+    a: &FrameData,
+    b: &FrameData,
+    cfg: &AlignConfig,
+) -> Result<Option<(Vec<[f64; 2]>, Vec<[f64; 2]>, Mat3)>, AlignError> {
     let m = match_one_to_one(&a.fine, &b.fine, 0.8)?;
-    let min = cfg.fine_min_inliers;
+    let min = fine_min(a, cfg);
     if m.len() < min {
         return Ok(None);
     }
@@ -257,12 +358,18 @@ fn fine_pair(a: &FrameData, b: &FrameData, cfg: &AlignConfig) -> Result<Option<(
     let thr = cfg.fine_inlier_px * long / 3840.0;
     let src = pts(&a.fine, m.iter().map(|x| x.0));
     let dst = pts(&b.fine, m.iter().map(|x| x.1));
-    let Some((h, inl)) = estimate_homography(&src, &dst, thr)? else { return Ok(None) };
+    let Some((h, inl)) = estimate_homography(&src, &dst, thr)? else {
+        return Ok(None);
+    };
     let keep: Vec<usize> = (0..inl.len()).filter(|&k| inl[k]).collect();
     if keep.len() < min {
         return Ok(None);
     }
-    Ok(Some((keep.iter().map(|&k| src[k]).collect(), keep.iter().map(|&k| dst[k]).collect(), svbrdf_core::geometry::mat3_from_rows(&h))))
+    Ok(Some((
+        keep.iter().map(|&k| src[k]).collect(),
+        keep.iter().map(|&k| dst[k]).collect(),
+        svbrdf_core::geometry::mat3_from_rows(&h),
+    )))
 }
 
 /// Sub-frame layout of one frame: rectangles with overlap, and the core cells.
@@ -285,12 +392,23 @@ impl Grid {
                 let (short, long) = (w.min(h), w.max(h));
                 let a = ((5.0 * short / 2160.0).round() as usize).max(3);
                 let b = ((11.0 * long / 3840.0).round() as usize).max(5);
-                if h >= w { (a, b) } else { (b, a) }
+                if h >= w {
+                    (a, b)
+                } else {
+                    (b, a)
+                }
             }
         };
         // Paper: 25 and 22 px overlap at 2160 x 3840.
         let s = w.max(h) / 3840.0;
-        Self { cols, rows, w, h, ox: (25.0 * s).max(4.0), oy: (22.0 * s).max(4.0) }
+        Self {
+            cols,
+            rows,
+            w,
+            h,
+            ox: (25.0 * s).max(4.0),
+            oy: (22.0 * s).max(4.0),
+        }
     }
 
     fn len(&self) -> usize {
@@ -298,8 +416,10 @@ impl Grid {
     }
 
     fn cell(&self, p: Vec2) -> usize {
-        let c = (((p.x + 0.5) / self.w * self.cols as f64).floor() as isize).clamp(0, self.cols as isize - 1) as usize;
-        let r = (((p.y + 0.5) / self.h * self.rows as f64).floor() as isize).clamp(0, self.rows as isize - 1) as usize;
+        let c = (((p.x + 0.5) / self.w * self.cols as f64).floor() as isize)
+            .clamp(0, self.cols as isize - 1) as usize;
+        let r = (((p.y + 0.5) / self.h * self.rows as f64).floor() as isize)
+            .clamp(0, self.rows as isize - 1) as usize;
         r * self.cols + c
     }
 
@@ -332,7 +452,11 @@ impl Grid {
                     if r + 1 < self.rows {
                         let y = (r + 1) as f64 * ch - 0.5;
                         for dy in [-self.oy, 0.0, self.oy] {
-                            out.push((k, k + self.cols, Vec2::new((c as f64 + t) * cw - 0.5, y + dy)));
+                            out.push((
+                                k,
+                                k + self.cols,
+                                Vec2::new((c as f64 + t) * cw - 0.5, y + dy),
+                            ));
                         }
                     }
                 }
@@ -345,7 +469,17 @@ impl Grid {
 /// Normalisation of frame pixels for conditioning: centred, long side = 2.
 fn normaliser(w: u32, h: u32) -> Mat3 {
     let s = 2.0 / f64::from(w.max(h));
-    Mat3::new(s, 0.0, -s * 0.5 * (f64::from(w) - 1.0), 0.0, s, -s * 0.5 * (f64::from(h) - 1.0), 0.0, 0.0, 1.0)
+    Mat3::new(
+        s,
+        0.0,
+        -s * 0.5 * (f64::from(w) - 1.0),
+        0.0,
+        s,
+        -s * 0.5 * (f64::from(h) - 1.0),
+        0.0,
+        0.0,
+        1.0,
+    )
 }
 
 /// Coarse to fine registration of the decoded frames.
@@ -357,14 +491,28 @@ pub fn register(
     progress: &dyn Progress,
     lap: &mut dyn FnMut(&str),
 ) -> Result<Registration, AlignError> {
-    let mut drops = DropCounts { decoded: decoded.len(), ..DropCounts::default() };
+    let mut drops = DropCounts {
+        decoded: decoded.len(),
+        ..DropCounts::default()
+    };
     // Blur selection.
     let metrics: Vec<f64> = decoded.iter().map(|f| f.blur).collect();
-    let blurry: BTreeSet<usize> = blurry_frames(&metrics, cfg.blur_sigmas).into_iter().collect();
+    let blurry: BTreeSet<usize> = blurry_frames(&metrics, cfg.blur_sigmas)
+        .into_iter()
+        .collect();
     drops.blurry = blurry.len();
-    let frames: Vec<FrameData> = decoded.into_iter().enumerate().filter(|(i, _)| !blurry.contains(i)).map(|(_, f)| f).collect();
+    let frames: Vec<FrameData> = decoded
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| !blurry.contains(i))
+        .map(|(_, f)| f)
+        .collect();
     if frames.len() < 2 {
-        return Err(AlignError::Connect(format!("only {} sharp frame(s) out of {}: need at least 2", frames.len(), drops.decoded)));
+        return Err(AlignError::Connect(format!(
+            "only {} sharp frame(s) out of {}: need at least 2",
+            frames.len(),
+            drops.decoded
+        )));
     }
     let (width, height) = (frames[0].width, frames[0].height);
     let intrinsics = Intrinsics::from_fov(width, height, cfg.camera.fov_deg)?;
@@ -410,17 +558,22 @@ pub fn register(
             let out = match ref_features {
                 None => Ok(Vec::new()),
                 Some(rfe) => match_one_to_one(&f.fine, &rfe.features, 0.8).and_then(|m| {
-                    if m.len() < cfg.fine_min_inliers {
+                    let min = fine_min(f, cfg);
+                    if m.len() < min {
                         return Ok(Vec::new());
                     }
                     let src = pts(&f.fine, m.iter().map(|x| x.0));
-                    let dst: Vec<[f64; 2]> = m.iter().map(|x| [rfe.plane[x.1 as usize].x, rfe.plane[x.1 as usize].y]).collect();
+                    let dst: Vec<[f64; 2]> = m
+                        .iter()
+                        .map(|x| [rfe.plane[x.1 as usize].x, rfe.plane[x.1 as usize].y])
+                        .collect();
                     // Verify on the plane: a homography frame px -> plane cm, with the
                     // inlier distance converted through a rough frame scale.
                     let thr_px = cfg.fine_inlier_px * f64::from(f.width.max(f.height)) / 3840.0;
                     let thr_cm = thr_px * cm_per_px;
                     Ok(match estimate_homography(&src, &dst, thr_cm)? {
-                        Some((_, inl)) if inl.iter().filter(|v| **v).count() >= cfg.fine_min_inliers / 2 => (0..src.len())
+                        Some((_, inl)) if inl.iter().filter(|v| **v).count() >= min => (0..src
+                            .len())
                             .filter(|&k| inl[k])
                             .map(|k| (src[k], Vec2::new(dst[k][0], dst[k][1])))
                             .collect(),
@@ -436,32 +589,59 @@ pub fn register(
     lap("fine matching");
 
     // Marker anchors (eqs. 5-6).
-    let world_markers: HashMap<i32, [Vec2; 4]> = rf.markers.iter().map(|(id, c)| (*id, *c)).collect();
+    let world_markers: HashMap<i32, [Vec2; 4]> =
+        rf.markers.iter().map(|(id, c)| (*id, *c)).collect();
     let marker_anchors: Vec<Vec<(Vec2, Vec2)>> = frames
         .iter()
         .map(|f| {
             f.markers
                 .iter()
-                .filter_map(|m| world_markers.get(&m.id).map(|w| (0..4).map(|k| (m.corners[k], w[k])).collect::<Vec<_>>()))
+                .filter_map(|m| {
+                    world_markers
+                        .get(&m.id)
+                        .map(|w| (0..4).map(|k| (m.corners[k], w[k])).collect::<Vec<_>>())
+                })
                 .flatten()
                 .collect()
         })
         .collect();
     let with_markers = marker_anchors.iter().filter(|a| !a.is_empty()).count();
+    if std::env::var_os("SVBRDF_DEBUG").is_some() {
+        for (i, f) in frames.iter().enumerate() {
+            eprintln!(
+                "frame {} fine {} coarse {} markers {} anchors {}",
+                f.index,
+                f.fine.len(),
+                f.coarse.len(),
+                marker_anchors[i].len(),
+                anchors[i].len()
+            );
+        }
+        eprintln!(
+            "fine pairs ok: {} of {}",
+            fine.iter().filter(|x| x.2.is_some()).count(),
+            fine.len()
+        );
+    }
     let reference_anchored = anchors.iter().filter(|a| !a.is_empty()).count();
 
     // Initial plane_from_pixel homography per frame: from its own absolute anchors,
     // else propagated from a neighbour through the pairwise homography.
     let mut init: Vec<Option<Mat3>> = (0..n)
         .map(|i| {
-            let mut src: Vec<Vec2> = anchors[i].iter().map(|(p, _)| Vec2::new(p[0], p[1])).collect();
+            let mut src: Vec<Vec2> = anchors[i]
+                .iter()
+                .map(|(p, _)| Vec2::new(p[0], p[1]))
+                .collect();
             let mut dst: Vec<Vec2> = anchors[i].iter().map(|(_, x)| *x).collect();
             for (p, x) in &marker_anchors[i] {
                 src.push(*p);
                 dst.push(*x);
             }
-            if src.len() >= 8 {
-                Homography::from_correspondences(&src, &dst).ok().map(|h| h.0)
+            if src.len() >= 4 {
+                Homography::from_correspondences(&src, &dst)
+                    .ok()
+                    .map(|h| h.0)
             } else {
                 None
             }
@@ -506,7 +686,11 @@ pub fn register(
     let grid = Grid::new(width, height, cfg);
     let nrm = normaliser(width, height);
     let nrm_inv = nrm.try_inverse().unwrap_or_else(Mat3::identity);
-    let slot: HashMap<usize, usize> = registered.iter().enumerate().map(|(k, &i)| (i, k)).collect();
+    let slot: HashMap<usize, usize> = registered
+        .iter()
+        .enumerate()
+        .map(|(k, &i)| (i, k))
+        .collect();
     let sub = |frame: usize, p: Vec2| slot[&frame] * grid.len() + grid.cell(p);
     let norm = |p: Vec2| Homography(nrm).apply(p).unwrap_or(p);
     let mut init_blocks = Vec::with_capacity(registered.len() * grid.len());
@@ -518,23 +702,47 @@ pub fn register(
     }
     let mut cons = Vec::new();
     for (i, j, r) in &fine {
-        let (Some((a, b, _)), true, true) = (r, slot.contains_key(i), slot.contains_key(j)) else { continue };
+        let (Some((a, b, _)), true, true) = (r, slot.contains_key(i), slot.contains_key(j)) else {
+            continue;
+        };
         for (p, q) in a.iter().zip(b) {
             let (p, q) = (Vec2::new(p[0], p[1]), Vec2::new(q[0], q[1]));
-            cons.push(Constraint::Pair { a: sub(*i, p), p: norm(p), b: sub(*j, q), q: norm(q), w: 1.0 });
+            cons.push(Constraint::Pair {
+                a: sub(*i, p),
+                p: norm(p),
+                b: sub(*j, q),
+                q: norm(q),
+                w: 1.0,
+            });
         }
     }
     for &i in &registered {
         for (p, x) in &anchors[i] {
             let p = Vec2::new(p[0], p[1]);
-            cons.push(Constraint::Anchor { a: sub(i, p), p: norm(p), x: *x, w: 1.0 });
+            cons.push(Constraint::Anchor {
+                a: sub(i, p),
+                p: norm(p),
+                x: *x,
+                w: 1.0,
+            });
         }
         for (p, x) in &marker_anchors[i] {
-            cons.push(Constraint::Anchor { a: sub(i, *p), p: norm(*p), x: *x, w: 4.0 });
+            cons.push(Constraint::Anchor {
+                a: sub(i, *p),
+                p: norm(*p),
+                x: *x,
+                w: 4.0,
+            });
         }
         for (a, b, p) in grid.seams() {
             let base = slot[&i] * grid.len();
-            cons.push(Constraint::Pair { a: base + a, p: norm(p), b: base + b, q: norm(p), w: cfg.overlap_weight });
+            cons.push(Constraint::Pair {
+                a: base + a,
+                p: norm(p),
+                b: base + b,
+                q: norm(p),
+                w: cfg.overlap_weight,
+            });
         }
     }
     // Residual scale: about two frame pixels on the plane.
@@ -545,7 +753,10 @@ pub fn register(
     lap("global solve");
 
     // Back to pixel coordinates, poses from the centre sub-frame, region check.
-    let centre_cell = grid.cell(Vec2::new(0.5 * (f64::from(width) - 1.0), 0.5 * (f64::from(height) - 1.0)));
+    let centre_cell = grid.cell(Vec2::new(
+        0.5 * (f64::from(width) - 1.0),
+        0.5 * (f64::from(height) - 1.0),
+    ));
     let region = rf.marker_region().expanded(cfg.camera.marker_size_cm);
     let mut out_frames = Vec::new();
     let mut mappings = Vec::new();
@@ -558,11 +769,16 @@ pub fn register(
             })
             .collect();
         let centre_h = blocks[centre_cell].1;
-        let Some(pose) = centre_h.try_inverse().and_then(|inv| pose_from_homography(&intrinsics, &inv)) else {
+        let Some(pose) = centre_h
+            .try_inverse()
+            .and_then(|inv| pose_from_homography(&intrinsics, &inv))
+        else {
             drops.unregistered += 1;
             continue;
         };
-        if !region.contains(Vec2::new(pose.centre.x, pose.centre.y)) || !blocks.iter().all(|b| b.1.iter().all(|v| v.is_finite())) {
+        if !region.contains(Vec2::new(pose.centre.x, pose.centre.y))
+            || !blocks.iter().all(|b| b.1.iter().all(|v| v.is_finite()))
+        {
             drops.outside += 1;
             continue;
         }
@@ -572,7 +788,9 @@ pub fn register(
     }
     drops.kept = out_frames.len();
     if out_frames.is_empty() {
-        return Err(AlignError::Connect("every frame's camera pose fell outside the marker boundary".into()));
+        return Err(AlignError::Connect(
+            "every frame's camera pose fell outside the marker boundary".into(),
+        ));
     }
     Ok(Registration {
         frames: out_frames,

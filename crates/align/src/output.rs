@@ -3,7 +3,10 @@
 
 use std::path::Path;
 
-use svbrdf_core::capture::{Frame, FrameMapping, PreparedMapping, RegisteredCapture, Source, SourceKind, SubFrame, CAPTURE_FILE};
+use svbrdf_core::capture::{
+    Frame, FrameMapping, PreparedMapping, RegisteredCapture, Source, SourceKind, SubFrame,
+    CAPTURE_FILE,
+};
 use svbrdf_core::color::srgb_to_linear;
 use svbrdf_core::fsutil::{write_json, StagingDir};
 use svbrdf_core::geometry::{mat3_to_rows, Vec2, Vec3};
@@ -25,8 +28,14 @@ pub const CONNECTIVITY: &str = "connectivity.png";
 pub const SUMMARY: &str = "align.json";
 
 fn dot(img: &mut ImageF32, x: f64, y: f64, r: f64, rgb: [f32; 3]) {
-    let (x0, x1) = ((x - r).floor().max(0.0) as usize, (x + r).ceil().max(0.0) as usize);
-    let (y0, y1) = ((y - r).floor().max(0.0) as usize, (y + r).ceil().max(0.0) as usize);
+    let (x0, x1) = (
+        (x - r).floor().max(0.0) as usize,
+        (x + r).ceil().max(0.0) as usize,
+    );
+    let (y0, y1) = (
+        (y - r).floor().max(0.0) as usize,
+        (y + r).ceil().max(0.0) as usize,
+    );
     for yy in y0..=y1.min(img.height.saturating_sub(1)) {
         for xx in x0..=x1.min(img.width.saturating_sub(1)) {
             if (xx as f64 - x).hypot(yy as f64 - y) <= r {
@@ -56,13 +65,26 @@ pub fn write(
     let mut heights: Vec<f64> = reg.poses.iter().map(|p| p.centre.z).collect();
     heights.sort_by(f64::total_cmp);
     let median_h = heights[heights.len() / 2];
-    let px_per_cm = cfg.px_per_cm.unwrap_or_else(|| (0.5 * reg.intrinsics.fx / median_h).max(1.0).round());
+    let px_per_cm = cfg
+        .px_per_cm
+        .unwrap_or_else(|| (0.5 * reg.intrinsics.fx / median_h).max(1.0).round());
 
     let video = std::path::absolute(&inputs.video).unwrap_or_else(|_| inputs.video.clone());
     let mut cap = RegisteredCapture::new("svbrdf align", region, px_per_cm);
-    cap.sources.push(Source { kind: SourceKind::Video, path: video.to_string_lossy().into_owned(), encoding: Encoding::Srgb, stream: 0 });
+    cap.sources.push(Source {
+        kind: SourceKind::Video,
+        path: video.to_string_lossy().into_owned(),
+        encoding: Encoding::Srgb,
+        stream: 0,
+    });
     let offset = Vec3::from(cfg.camera.flash_offset_cm);
-    for (k, ((f, m), pose)) in reg.frames.iter().zip(&reg.mappings).zip(&reg.poses).enumerate() {
+    for (k, ((f, m), pose)) in reg
+        .frames
+        .iter()
+        .zip(&reg.mappings)
+        .zip(&reg.poses)
+        .enumerate()
+    {
         cap.frames.push(Frame {
             id: k as u32,
             source: 0,
@@ -72,7 +94,13 @@ pub fn write(
             width: f.width,
             height: f.height,
             mapping: FrameMapping::Homographies {
-                subframes: m.iter().map(|(rect, h)| SubFrame { rect: *rect, plane_from_pixel: mat3_to_rows(h) }).collect(),
+                subframes: m
+                    .iter()
+                    .map(|(rect, h)| SubFrame {
+                        rect: *rect,
+                        plane_from_pixel: mat3_to_rows(h),
+                    })
+                    .collect(),
             },
             camera_position: pose.centre.into(),
             light_position: pose.camera_to_world(offset).into(),
@@ -92,8 +120,15 @@ pub fn write(
         for r in 0..grid.height {
             for c in 0..grid.width {
                 if let Some(p) = pm.plane_to_pixel(grid.pixel_centre(c, r)) {
-                    let (tx, ty) = (((p.x + 0.5) * s - 0.5).round(), ((p.y + 0.5) * s - 0.5).round());
-                    if tx >= 0.0 && ty >= 0.0 && (tx as usize) < f.thumb.width && (ty as usize) < f.thumb.height {
+                    let (tx, ty) = (
+                        ((p.x + 0.5) * s - 0.5).round(),
+                        ((p.y + 0.5) * s - 0.5).round(),
+                    );
+                    if tx >= 0.0
+                        && ty >= 0.0
+                        && (tx as usize) < f.thumb.width
+                        && (ty as usize) < f.thumb.height
+                    {
                         let px = f.thumb.pixel(tx as usize, ty as usize);
                         let dst = sum.pixel_mut(c, r);
                         for ch in 0..3 {
@@ -108,11 +143,26 @@ pub fn write(
     let mut pano = sum.clone();
     for (i, n) in count.iter().enumerate() {
         for ch in 0..3 {
-            pano.data[i * 3 + ch] = if *n > 0 { sum.data[i * 3 + ch] / *n as f32 } else { 0.0 };
+            pano.data[i * 3 + ch] = if *n > 0 {
+                sum.data[i * 3 + ch] / *n as f32
+            } else {
+                0.0
+            };
         }
     }
-    let meta = |what: &str| vec![("map", what.to_string()), ("px_per_cm", pano_res.to_string())];
-    write_png(&dir.join(PANORAMA), &pano, Encoding::Srgb, PngDepth::Eight, &meta("average_colour_panorama"))?;
+    let meta = |what: &str| {
+        vec![
+            ("map", what.to_string()),
+            ("px_per_cm", pano_res.to_string()),
+        ]
+    };
+    write_png(
+        &dir.join(PANORAMA),
+        &pano,
+        Encoding::Srgb,
+        PngDepth::Eight,
+        &meta("average_colour_panorama"),
+    )?;
     progress.advance(1);
 
     // Trajectory over a dimmed panorama: cameras blue, flashes yellow, markers red.
@@ -131,7 +181,13 @@ pub fn write(
             dot(&mut traj, q.x, q.y, 2.0, [1.0, 0.1, 0.1]);
         }
     }
-    write_png(&dir.join(TRAJECTORY), &traj, Encoding::Srgb, PngDepth::Eight, &meta("camera_blue_flash_yellow_markers_red"))?;
+    write_png(
+        &dir.join(TRAJECTORY),
+        &traj,
+        Encoding::Srgb,
+        PngDepth::Eight,
+        &meta("camera_blue_flash_yellow_markers_red"),
+    )?;
     progress.advance(1);
 
     // Connectivity map: grey = tested and matched, white = kept after filtering.
@@ -149,7 +205,13 @@ pub fn write(
             conn.pixel_mut(a, b).copy_from_slice(&[1.0, 1.0, 1.0]);
         }
     }
-    write_png(&dir.join(CONNECTIVITY), &conn, Encoding::Linear, PngDepth::Eight, &meta("connectivity_map"))?;
+    write_png(
+        &dir.join(CONNECTIVITY),
+        &conn,
+        Encoding::Linear,
+        PngDepth::Eight,
+        &meta("connectivity_map"),
+    )?;
     progress.advance(1);
     progress.finish();
     timings.push(("write".into(), t0.elapsed().as_secs_f64()));

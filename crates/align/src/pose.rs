@@ -6,9 +6,23 @@ use svbrdf_core::geometry::{Intrinsics, Mat3, Pose, Vec3};
 
 /// Pose of a camera whose `pixel_from_plane` homography maps plane cm to pixels.
 pub fn pose_from_homography(k: &Intrinsics, pixel_from_plane: &Mat3) -> Option<Pose> {
-    let kinv = Mat3::new(1.0 / k.fx, 0.0, -k.cx / k.fx, 0.0, 1.0 / k.fy, -k.cy / k.fy, 0.0, 0.0, 1.0);
+    let kinv = Mat3::new(
+        1.0 / k.fx,
+        0.0,
+        -k.cx / k.fx,
+        0.0,
+        1.0 / k.fy,
+        -k.cy / k.fy,
+        0.0,
+        0.0,
+        1.0,
+    );
     let m = kinv * pixel_from_plane;
-    let (c1, c2, c3) = (m.column(0).into_owned(), m.column(1).into_owned(), m.column(2).into_owned());
+    let (c1, c2, c3) = (
+        m.column(0).into_owned(),
+        m.column(1).into_owned(),
+        m.column(2).into_owned(),
+    );
     let mut lambda = 2.0 / (c1.norm() + c2.norm());
     if !lambda.is_finite() {
         return None;
@@ -28,7 +42,10 @@ pub fn pose_from_homography(k: &Intrinsics, pixel_from_plane: &Mat3) -> Option<P
     if !(centre.z > 0.0) {
         return None;
     }
-    Some(Pose { rotation: r.transpose(), centre })
+    Some(Pose {
+        rotation: r.transpose(),
+        centre,
+    })
 }
 
 #[cfg(test)]
@@ -40,10 +57,31 @@ mod tests {
     #[test]
     fn recovers_pose() {
         let k = Intrinsics::from_fov(640, 480, 70.0).unwrap();
-        let pose = Pose::look_at(Vec3::new(2.0, -1.0, 14.0), Vec3::new(2.5, -0.5, 0.0), Vec3::y()).unwrap();
-        let cam = Camera { intrinsics: k, distortion: RadialDistortion::default(), pose };
-        let plane: Vec<Vec2> = [(-3.0, -3.0), (6.0, -2.0), (5.0, 4.0), (-2.0, 5.0), (1.0, 1.0)].iter().map(|&(x, y)| Vec2::new(x, y)).collect();
-        let px: Vec<Vec2> = plane.iter().map(|p| cam.project(Vec3::new(p.x, p.y, 0.0)).unwrap()).collect();
+        let pose = Pose::look_at(
+            Vec3::new(2.0, -1.0, 14.0),
+            Vec3::new(2.5, -0.5, 0.0),
+            Vec3::y(),
+        )
+        .unwrap();
+        let cam = Camera {
+            intrinsics: k,
+            distortion: RadialDistortion::default(),
+            pose,
+        };
+        let plane: Vec<Vec2> = [
+            (-3.0, -3.0),
+            (6.0, -2.0),
+            (5.0, 4.0),
+            (-2.0, 5.0),
+            (1.0, 1.0),
+        ]
+        .iter()
+        .map(|&(x, y)| Vec2::new(x, y))
+        .collect();
+        let px: Vec<Vec2> = plane
+            .iter()
+            .map(|p| cam.project(Vec3::new(p.x, p.y, 0.0)).unwrap())
+            .collect();
         let h = Homography::from_correspondences(&plane, &px).unwrap();
         let est = pose_from_homography(&k, &h.0).unwrap();
         assert!((est.centre - pose.centre).norm() < 1e-6, "{:?}", est.centre);

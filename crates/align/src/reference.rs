@@ -44,14 +44,24 @@ impl ReferenceFrame {
     /// The rectangle bounded by the markers' inner corners (the corner of each marker
     /// closest to the centre of all four).
     pub fn marker_region(&self) -> Region {
-        let all: Vec<Vec2> = self.markers.iter().flat_map(|(_, c)| c.iter().copied()).collect();
+        let all: Vec<Vec2> = self
+            .markers
+            .iter()
+            .flat_map(|(_, c)| c.iter().copied())
+            .collect();
         let centre = all.iter().fold(Vec2::zeros(), |a, p| a + p) / all.len().max(1) as f64;
         let inner: Vec<Vec2> = self
             .markers
             .iter()
-            .filter_map(|(_, c)| c.iter().copied().min_by(|a, b| (a - centre).norm().total_cmp(&(b - centre).norm())))
+            .filter_map(|(_, c)| {
+                c.iter()
+                    .copied()
+                    .min_by(|a, b| (a - centre).norm().total_cmp(&(b - centre).norm()))
+            })
             .collect();
-        let fold = |f: fn(f64, f64) -> f64, init: f64, get: fn(&Vec2) -> f64| inner.iter().map(get).fold(init, f);
+        let fold = |f: fn(f64, f64) -> f64, init: f64, get: fn(&Vec2) -> f64| {
+            inner.iter().map(get).fold(init, f)
+        };
         Region {
             x_min: fold(f64::min, f64::MAX, |p| p.x),
             x_max: fold(f64::max, f64::MIN, |p| p.x),
@@ -66,11 +76,30 @@ impl ReferenceFrame {
 /// bottom-left corner position. `None` if degenerate.
 pub fn marker_pose(k: &Intrinsics, corners: &[Vec2; 4], size: f64) -> Option<(Mat3, Vec3)> {
     // Marker-local coordinates, y up: TL, TR, BR, BL.
-    let local = [Vec2::new(0.0, size), Vec2::new(size, size), Vec2::new(size, 0.0), Vec2::new(0.0, 0.0)];
+    let local = [
+        Vec2::new(0.0, size),
+        Vec2::new(size, size),
+        Vec2::new(size, 0.0),
+        Vec2::new(0.0, 0.0),
+    ];
     let h = Homography::from_correspondences(&local, corners).ok()?;
-    let kinv = Mat3::new(1.0 / k.fx, 0.0, -k.cx / k.fx, 0.0, 1.0 / k.fy, -k.cy / k.fy, 0.0, 0.0, 1.0);
+    let kinv = Mat3::new(
+        1.0 / k.fx,
+        0.0,
+        -k.cx / k.fx,
+        0.0,
+        1.0 / k.fy,
+        -k.cy / k.fy,
+        0.0,
+        0.0,
+        1.0,
+    );
     let m = kinv * h.0;
-    let (c1, c2, c3) = (m.column(0).into_owned(), m.column(1).into_owned(), m.column(2).into_owned());
+    let (c1, c2, c3) = (
+        m.column(0).into_owned(),
+        m.column(1).into_owned(),
+        m.column(2).into_owned(),
+    );
     let mut lambda = 2.0 / (c1.norm() + c2.norm());
     if c3.z * lambda < 0.0 {
         lambda = -lambda; // the marker must be in front of the camera
@@ -90,7 +119,12 @@ pub fn marker_pose(k: &Intrinsics, corners: &[Vec2; 4], size: f64) -> Option<(Ma
 }
 
 /// Build the world frame from the markers found in the reference photo.
-pub fn reference_frame(k: &Intrinsics, found: &[MarkerObservation], marker_size: f64, expected: usize) -> Result<ReferenceFrame, AlignError> {
+pub fn reference_frame(
+    k: &Intrinsics,
+    found: &[MarkerObservation],
+    marker_size: f64,
+    expected: usize,
+) -> Result<ReferenceFrame, AlignError> {
     let mut ids: Vec<i32> = found.iter().map(|m| m.id).collect();
     ids.sort_unstable();
     ids.dedup();
@@ -106,8 +140,12 @@ pub fn reference_frame(k: &Intrinsics, found: &[MarkerObservation], marker_size:
     let mut d_sum = 0.0;
     let mut w_sum = 0.0;
     for m in found {
-        let (r, t) = marker_pose(k, &m.corners, marker_size)
-            .ok_or_else(|| AlignError::Markers(format!("marker {} in the reference photo is degenerate", m.id)))?;
+        let (r, t) = marker_pose(k, &m.corners, marker_size).ok_or_else(|| {
+            AlignError::Markers(format!(
+                "marker {} in the reference photo is degenerate",
+                m.id
+            ))
+        })?;
         let n = r.column(2).into_owned();
         let w = (m.corners[0] - m.corners[2]).norm();
         n_sum += n * w;
@@ -139,12 +177,17 @@ pub fn reference_frame(k: &Intrinsics, found: &[MarkerObservation], marker_size:
         .ok_or_else(|| AlignError::Markers("reference plane homography is singular".into()))?;
     let mut markers = Vec::new();
     for m in found {
-        let c = m.corners.map(|p| plane_from_pixel.apply(p).unwrap_or_else(Vec2::zeros));
+        let c = m
+            .corners
+            .map(|p| plane_from_pixel.apply(p).unwrap_or_else(Vec2::zeros));
         markers.push((m.id, c));
     }
     markers.sort_by_key(|m| m.0);
     Ok(ReferenceFrame {
-        pose: Pose { rotation: w_from_c, centre },
+        pose: Pose {
+            rotation: w_from_c,
+            centre,
+        },
         intrinsics: *k,
         plane_from_pixel,
         markers,
@@ -159,11 +202,19 @@ mod tests {
     use svbrdf_core::geometry::{rot_x, Camera, RadialDistortion};
 
     fn observe(cam: &Camera, corners: &[[f64; 3]; 4], id: i32) -> MarkerObservation {
-        MarkerObservation { id, corners: corners.map(|c| cam.project(Vec3::from(c)).unwrap()) }
+        MarkerObservation {
+            id,
+            corners: corners.map(|c| cam.project(Vec3::from(c)).unwrap()),
+        }
     }
 
     fn square(x0: f64, y1: f64, s: f64) -> [[f64; 3]; 4] {
-        [[x0, y1, 0.0], [x0 + s, y1, 0.0], [x0 + s, y1 - s, 0.0], [x0, y1 - s, 0.0]]
+        [
+            [x0, y1, 0.0],
+            [x0 + s, y1, 0.0],
+            [x0 + s, y1 - s, 0.0],
+            [x0, y1 - s, 0.0],
+        ]
     }
 
     #[test]
@@ -177,13 +228,29 @@ mod tests {
             let cam = Camera {
                 intrinsics: k,
                 distortion: RadialDistortion::default(),
-                pose: Pose { rotation: rot_x(tilt_deg.to_radians()) * down, centre: Vec3::new(0.0, 0.0, 20.0) },
+                pose: Pose {
+                    rotation: rot_x(tilt_deg.to_radians()) * down,
+                    centre: Vec3::new(0.0, 0.0, 20.0),
+                },
             };
             let s = 1.6;
-            let truth = [square(-5.6, 5.6, s), square(4.0, 5.6, s), square(4.0, -4.0, s), square(-5.6, -4.0, s)];
-            let found: Vec<_> = truth.iter().enumerate().map(|(i, c)| observe(&cam, c, i as i32)).collect();
+            let truth = [
+                square(-5.6, 5.6, s),
+                square(4.0, 5.6, s),
+                square(4.0, -4.0, s),
+                square(-5.6, -4.0, s),
+            ];
+            let found: Vec<_> = truth
+                .iter()
+                .enumerate()
+                .map(|(i, c)| observe(&cam, c, i as i32))
+                .collect();
             let rf = reference_frame(&k, &found, s, 4).unwrap();
-            assert!((rf.tilt.to_degrees() - tilt_deg.abs()).abs() < 0.05, "tilt {}", rf.tilt.to_degrees());
+            assert!(
+                (rf.tilt.to_degrees() - tilt_deg.abs()).abs() < 0.05,
+                "tilt {}",
+                rf.tilt.to_degrees()
+            );
             // Marker side lengths and the distance between marker 0 and 2 in cm.
             for (_, c) in &rf.markers {
                 assert!(((c[0] - c[1]).norm() - s).abs() < 1e-3);
@@ -192,7 +259,11 @@ mod tests {
             let dt = (Vec2::new(-5.6, 5.6) - Vec2::new(5.6, -5.6)).norm();
             assert!((d - dt).abs() < 2e-3, "{d} vs {dt}");
             // Camera distance to the plane point on its axis.
-            let axis_hit = svbrdf_core::geometry::ray_plane(cam.pose.centre, cam.pose.rotation.column(2).into_owned()).unwrap();
+            let axis_hit = svbrdf_core::geometry::ray_plane(
+                cam.pose.centre,
+                cam.pose.rotation.column(2).into_owned(),
+            )
+            .unwrap();
             let true_range = (Vec3::new(axis_hit.x, axis_hit.y, 0.0) - cam.pose.centre).norm();
             assert!((rf.pose.centre.norm() - true_range).abs() < 1e-2);
             if tilt_deg == 0.0 {
@@ -207,7 +278,15 @@ mod tests {
     #[test]
     fn too_few_markers_names_ids() {
         let k = Intrinsics::from_fov(720, 1280, 70.0).unwrap();
-        let m = MarkerObservation { id: 7, corners: [Vec2::new(0.0, 0.0), Vec2::new(10.0, 0.0), Vec2::new(10.0, 10.0), Vec2::new(0.0, 10.0)] };
+        let m = MarkerObservation {
+            id: 7,
+            corners: [
+                Vec2::new(0.0, 0.0),
+                Vec2::new(10.0, 0.0),
+                Vec2::new(10.0, 10.0),
+                Vec2::new(0.0, 10.0),
+            ],
+        };
         let e = reference_frame(&k, &[m], 1.6, 4).unwrap_err().to_string();
         assert!(e.contains("[7]"), "{e}");
     }

@@ -73,7 +73,16 @@ pub struct SolveReport {
 
 fn to_params(h: &Mat3) -> [f64; 8] {
     let h = h / h[(2, 2)];
-    [h[(0, 0)], h[(0, 1)], h[(0, 2)], h[(1, 0)], h[(1, 1)], h[(1, 2)], h[(2, 0)], h[(2, 1)]]
+    [
+        h[(0, 0)],
+        h[(0, 1)],
+        h[(0, 2)],
+        h[(1, 0)],
+        h[(1, 1)],
+        h[(1, 2)],
+        h[(2, 0)],
+        h[(2, 1)],
+    ]
 }
 
 /// Homography of a parameter block.
@@ -87,14 +96,36 @@ fn project(h: &[f64], p: Vec2) -> (Vec2, [[f64; 8]; 2]) {
     let n1 = h[0] * p.x + h[1] * p.y + h[2];
     let n2 = h[3] * p.x + h[4] * p.y + h[5];
     let d = h[6] * p.x + h[7] * p.y + 1.0;
-    let d = if d.abs() < 1e-9 { 1e-9f64.copysign(d) } else { d };
+    let d = if d.abs() < 1e-9 {
+        1e-9f64.copysign(d)
+    } else {
+        d
+    };
     let (u, v) = (n1 / d, n2 / d);
     let id = 1.0 / d;
     (
         Vec2::new(u, v),
         [
-            [p.x * id, p.y * id, id, 0.0, 0.0, 0.0, -u * p.x * id, -u * p.y * id],
-            [0.0, 0.0, 0.0, p.x * id, p.y * id, id, -v * p.x * id, -v * p.y * id],
+            [
+                p.x * id,
+                p.y * id,
+                id,
+                0.0,
+                0.0,
+                0.0,
+                -u * p.x * id,
+                -u * p.y * id,
+            ],
+            [
+                0.0,
+                0.0,
+                0.0,
+                p.x * id,
+                p.y * id,
+                id,
+                -v * p.x * id,
+                -v * p.y * id,
+            ],
         ],
     )
 }
@@ -134,7 +165,11 @@ fn residual(c: &Constraint, x: &[f64], with_jac: bool) -> (Vec2, Vec<(usize, [[f
                     *v = -*v;
                 }
             }
-            let j = if with_jac { vec![(a, ja), (b, jb)] } else { Vec::new() };
+            let j = if with_jac {
+                vec![(a, ja), (b, jb)]
+            } else {
+                Vec::new()
+            };
             (pa - pb, j, w)
         }
         Constraint::Anchor { a, p, x: target, w } => {
@@ -147,7 +182,12 @@ fn residual(c: &Constraint, x: &[f64], with_jac: bool) -> (Vec2, Vec<(usize, [[f
 
 /// Minimise the robust transfer error. `init` holds one homography per sub-frame;
 /// `huber` is the residual (cm) beyond which a constraint's weight falls off.
-pub fn solve(init: &[Mat3], constraints: &[Constraint], huber: f64, iterations: usize) -> Result<(Vec<Mat3>, SolveReport), AlignError> {
+pub fn solve(
+    init: &[Mat3],
+    constraints: &[Constraint],
+    huber: f64,
+    iterations: usize,
+) -> Result<(Vec<Mat3>, SolveReport), AlignError> {
     let n = init.len();
     let mut x: Vec<f64> = init.iter().flat_map(to_params).collect();
     let robust = |r: f64| if r <= huber { 1.0 } else { huber / r };
@@ -158,17 +198,34 @@ pub fn solve(init: &[Mat3], constraints: &[Constraint], huber: f64, iterations: 
                 let (r, _, w) = residual(c, x, false);
                 let e = r.norm();
                 // Huber cost.
-                w * if e <= huber { 0.5 * e * e } else { huber * (e - 0.5 * huber) }
+                w * if e <= huber {
+                    0.5 * e * e
+                } else {
+                    huber * (e - 0.5 * huber)
+                }
             })
             .sum()
     };
-    let residual_norms = |x: &[f64]| -> Vec<f64> { constraints.iter().map(|c| residual(c, x, false).0.norm()).collect() };
+    let residual_norms = |x: &[f64]| -> Vec<f64> {
+        constraints
+            .iter()
+            .map(|c| residual(c, x, false).0.norm())
+            .collect()
+    };
     let rms = |v: &[f64]| (v.iter().map(|e| e * e).sum::<f64>() / v.len().max(1) as f64).sqrt();
-    let mut report = SolveReport { unknowns: 8 * n, constraints: constraints.len(), rms_before: rms(&residual_norms(&x)), ..SolveReport::default() };
+    let mut report = SolveReport {
+        unknowns: 8 * n,
+        constraints: constraints.len(),
+        rms_before: rms(&residual_norms(&x)),
+        ..SolveReport::default()
+    };
     let mut lambda = 1e-4;
     let mut current = cost(&x);
     for it in 0..iterations {
-        let mut ne = Normal { blocks: HashMap::new(), grad: vec![0.0; 8 * n] };
+        let mut ne = Normal {
+            blocks: HashMap::new(),
+            grad: vec![0.0; 8 * n],
+        };
         for c in constraints {
             let (r, j, w) = residual(c, &x, true);
             ne.add(&j, r, w * robust(r.norm()));
@@ -232,7 +289,10 @@ pub fn solve(init: &[Mat3], constraints: &[Constraint], huber: f64, iterations: 
     let mut sorted = norms.clone();
     sorted.sort_by(f64::total_cmp);
     report.median_after = sorted.get(sorted.len() / 2).copied().unwrap_or(0.0);
-    Ok(((0..n).map(|i| from_params(&x[i * 8..i * 8 + 8])).collect(), report))
+    Ok((
+        (0..n).map(|i| from_params(&x[i * 8..i * 8 + 8])).collect(),
+        report,
+    ))
 }
 
 #[cfg(test)]
@@ -251,10 +311,21 @@ mod tests {
         for i in 0..6 {
             for j in 0..6 {
                 let p = Vec2::new(-0.8 + 0.3 * f64::from(i), -0.8 + 0.3 * f64::from(j));
-                cons.push(Constraint::Anchor { a: 0, p, x: g0.apply(p).unwrap(), w: 1.0 });
+                cons.push(Constraint::Anchor {
+                    a: 0,
+                    p,
+                    x: g0.apply(p).unwrap(),
+                    w: 1.0,
+                });
                 let x = g0.apply(p).unwrap();
                 if let Some(q) = inv1.apply(x) {
-                    cons.push(Constraint::Pair { a: 0, p, b: 1, q, w: 1.0 });
+                    cons.push(Constraint::Pair {
+                        a: 0,
+                        p,
+                        b: 1,
+                        q,
+                        w: 1.0,
+                    });
                 }
             }
         }

@@ -12,6 +12,16 @@ use svbrdf_core::geometry::Vec3;
 
 #[derive(Args)]
 pub struct BenchArgs {
+    /// Compare an alignment (a registered capture folder) with the ground truth of the
+    /// simulated capture given by --truth, and print the accuracy as JSON.
+    #[arg(long, requires = "truth")]
+    align_capture: Option<std::path::PathBuf>,
+    /// A folder written by `svbrdf synth` (its ground_truth/truth.json is used).
+    #[arg(long)]
+    truth: Option<std::path::PathBuf>,
+    /// Skip the BRDF throughput measurements.
+    #[arg(long)]
+    no_brdf: bool,
     /// Also time `synth --preset tiny` end to end (needs a writable temp folder).
     #[arg(long)]
     synth: bool,
@@ -47,7 +57,83 @@ fn observations(n: usize) -> Vec<LightView> {
         .collect()
 }
 
+/// Alignment accuracy against simulator ground truth.
+pub fn align_accuracy(
+    capture_dir: &std::path::Path,
+    synth_dir: &std::path::Path,
+) -> Result<serde_json::Value> {
+    use svbrdf_core::capture::{PreparedMapping, RegisteredCapture};
+    use svbrdf_core::geometry::{mat3_from_rows, Camera, Pose, Vec2};
+    let cap = RegisteredCapture::load(capture_dir)?;
+    let text = std::fs::read_to_string(synth_dir.join("ground_truth/truth.json"))?;
+    let truth: svbrdf_synth::truth::GroundTruth = serde_json::from_str(&text)?;
+    let stream = &truth.streams[0];
+    let mut errs = Vec::new();
+    let mut cam_errs = Vec::new();
+    let mut light_errs = Vec::new();
+    for f in &cap.frames {
+        let Some(idx) = f.frame_index else { continue };
+        let Some(gt) = stream.frames.get(idx as usize) else {
+            continue;
+        };
+        let cam = Camera {
+            intrinsics: gt.camera.intrinsics,
+            distortion: gt.camera.distortion,
+            pose: Pose {
+                rotation: mat3_from_rows(&gt.camera.rotation),
+                centre: Vec3::from(gt.camera.position),
+            },
+        };
+        let pm = PreparedMapping::new(f)?;
+        let step = (f.width.max(f.height) / 48).max(1) as usize;
+        for y in (0..f.height as usize).step_by(step) {
+            for x in (0..f.width as usize).step_by(step) {
+                let p = Vec2::new(x as f64, y as f64);
+                let (Some(ours), Some(true_p)) = (pm.pixel_to_plane(p), cam.pixel_to_plane(p))
+                else {
+                    continue;
+                };
+                if !cap.region.contains(true_p) {
+                    continue;
+                }
+                errs.push((ours - true_p).norm() * cap.px_per_cm);
+            }
+        }
+        cam_errs
+            .push((Vec3::from(f.camera_position) - Vec3::from(gt.camera.position)).norm() * 10.0);
+        if let Some(l) = gt.light_position {
+            light_errs.push((Vec3::from(f.light_position) - Vec3::from(l)).norm() * 10.0);
+        }
+    }
+    let q = |v: &mut Vec<f64>, f: f64| -> f64 {
+        if v.is_empty() {
+            return f64::NAN;
+        }
+        v.sort_by(f64::total_cmp);
+        v[((v.len() - 1) as f64 * f).round() as usize]
+    };
+    Ok(json!({
+        "bench": "align_accuracy",
+        "preset": truth.config.preset,
+        "frames_kept": cap.frames.len(),
+        "frames_in_video": stream.frames.len(),
+        "px_per_cm": cap.px_per_cm,
+        "samples": errs.len(),
+        "align_error_px_median": q(&mut errs, 0.5),
+        "align_error_px_p95": q(&mut errs, 0.95),
+        "camera_error_mm_median": q(&mut cam_errs, 0.5),
+        "camera_error_mm_p95": q(&mut cam_errs, 0.95),
+        "flash_error_mm_median": q(&mut light_errs, 0.5),
+    }))
+}
+
 pub fn run(a: &BenchArgs) -> Result<()> {
+    if let (Some(c), Some(t)) = (&a.align_capture, &a.truth) {
+        println!("{}", align_accuracy(c, t)?);
+        if a.no_brdf {
+            return Ok(());
+        }
+    }
     let obs = observations(a.samples);
     let p = Prepared::new(BrdfParams {
         alpha_x: 0.15,

@@ -132,7 +132,12 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
         c.camera = svbrdf_align::CameraDescription::load(p)?;
     }
     if let Some(r) = &a.region {
-        c.region = Some(svbrdf_core::plane::Region { x_min: r[0], x_max: r[1], y_min: r[2], y_max: r[3] });
+        c.region = Some(svbrdf_core::plane::Region {
+            x_min: r[0],
+            x_max: r[1],
+            y_min: r[2],
+            y_max: r[3],
+        });
     }
     c.px_per_cm = a.px_per_cm;
     if let Some(v) = a.fine_long_side {
@@ -150,7 +155,9 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
             [c, r] => c.parse::<u32>().ok().zip(r.parse::<u32>().ok()),
             _ => None,
         };
-        c.subframes = Some(parsed.ok_or_else(|| anyhow::anyhow!("invalid sub-frame grid {s:?} (expected COLSxROWS, e.g. 5x11)"))?);
+        c.subframes = Some(parsed.ok_or_else(|| {
+            anyhow::anyhow!("invalid sub-frame grid {s:?} (expected COLSxROWS, e.g. 5x11)")
+        })?);
     }
     c.all_pairs = a.all_pairs;
     c.validate()?;
@@ -161,7 +168,10 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     let cfg = align_config(a)?;
     svbrdf_cv::set_single_threaded()?;
     let progress = progress::Bars::new();
-    let inputs = svbrdf_align::AlignInputs { video: a.video.clone(), reference: a.reference.clone() };
+    let inputs = svbrdf_align::AlignInputs {
+        video: a.video.clone(),
+        reference: a.reference.clone(),
+    };
     let s = svbrdf_align::align(&inputs, &cfg, &a.out, a.overwrite, &progress)?;
     let f = &s.frames;
     println!("wrote {}", s.out.display());
@@ -173,8 +183,15 @@ fn run_align(a: &AlignArgs) -> Result<()> {
         "matching: {} coarse pairs tested, {} connected, {} fine pairs; {} frames see markers, {} anchored to the reference photo",
         s.coarse_pairs_tested, s.connected_pairs, s.fine_pairs, s.frames_with_markers, s.reference_anchored
     );
-    println!("global solve: {} unknowns, residual rms {:.4} cm, median {:.4} cm", s.unknowns, s.solve_rms_cm, s.solve_median_cm);
-    let t: Vec<String> = s.timings.iter().map(|(n, v)| format!("{n} {v:.1} s")).collect();
+    println!(
+        "global solve: {} unknowns, residual rms {:.4} cm, median {:.4} cm",
+        s.unknowns, s.solve_rms_cm, s.solve_median_cm
+    );
+    let t: Vec<String> = s
+        .timings
+        .iter()
+        .map(|(n, v)| format!("{n} {v:.1} s"))
+        .collect();
     println!("timings: {}", t.join(", "));
     Ok(())
 }

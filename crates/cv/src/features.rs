@@ -30,7 +30,8 @@ impl Features {
 
     fn descriptor_mat(&self) -> Result<Mat, CvError> {
         let n = self.points.len() as i32;
-        let m = Mat::new_rows_cols_with_data(n, 128, &self.descriptors).ctx(|| "descriptor matrix".into())?;
+        let m = Mat::new_rows_cols_with_data(n, 128, &self.descriptors)
+            .ctx(|| "descriptor matrix".into())?;
         m.try_clone().ctx(|| "descriptor matrix".into())
     }
 }
@@ -39,7 +40,8 @@ impl Features {
 fn grey_mat(img: &ImageU8) -> Result<Mat, CvError> {
     let bgr = rgb_to_mat(img)?;
     let mut grey = Mat::default();
-    opencv::imgproc::cvt_color_def(&bgr, &mut grey, opencv::imgproc::COLOR_BGR2GRAY).ctx(|| "grey".into())?;
+    opencv::imgproc::cvt_color_def(&bgr, &mut grey, opencv::imgproc::COLOR_BGR2GRAY)
+        .ctx(|| "grey".into())?;
     Ok(grey)
 }
 
@@ -49,17 +51,32 @@ pub fn resize(img: &ImageU8, scale: f64) -> Result<ImageU8, CvError> {
     let mut dst = Mat::default();
     let w = ((img.width as f64) * scale).round().max(1.0) as i32;
     let h = ((img.height as f64) * scale).round().max(1.0) as i32;
-    opencv::imgproc::resize(&src, &mut dst, opencv::core::Size::new(w, h), 0.0, 0.0, opencv::imgproc::INTER_AREA)
-        .ctx(|| "resize".into())?;
+    opencv::imgproc::resize(
+        &src,
+        &mut dst,
+        opencv::core::Size::new(w, h),
+        0.0,
+        0.0,
+        opencv::imgproc::INTER_AREA,
+    )
+    .ctx(|| "resize".into())?;
     crate::mat_to_rgb(&dst)
 }
 
 /// Detect up to `max_features` SIFT features, ignoring a disc (`[cx, cy, radius]`, pixels)
 /// such as the flash highlight, whose features move with the camera.
-pub fn sift(img: &ImageU8, max_features: usize, exclude: Option<[f64; 3]>) -> Result<Features, CvError> {
+/// `contrast` is SIFT's contrast threshold (OpenCV default 0.04; lower finds more
+/// features on low-contrast materials).
+pub fn sift(
+    img: &ImageU8,
+    max_features: usize,
+    contrast: f64,
+    exclude: Option<[f64; 3]>,
+) -> Result<Features, CvError> {
     let grey = grey_mat(img)?;
-    let mut mask = Mat::new_rows_cols_with_default(grey.rows(), grey.cols(), CV_8UC1, Scalar::all(255.0))
-        .ctx(|| "mask".into())?;
+    let mut mask =
+        Mat::new_rows_cols_with_default(grey.rows(), grey.cols(), CV_8UC1, Scalar::all(255.0))
+            .ctx(|| "mask".into())?;
     if let Some([cx, cy, r]) = exclude {
         opencv::imgproc::circle(
             &mut mask,
@@ -72,28 +89,39 @@ pub fn sift(img: &ImageU8, max_features: usize, exclude: Option<[f64; 3]>) -> Re
         )
         .ctx(|| "mask".into())?;
     }
-    let mut det = SIFT::create(max_features as i32, 3, 0.04, 10.0, 1.6).ctx(|| "SIFT".into())?;
+    let mut det =
+        SIFT::create(max_features as i32, 3, contrast, 10.0, 1.6).ctx(|| "SIFT".into())?;
     let mut kps = Vector::<KeyPoint>::new();
     let mut desc = Mat::default();
-    det.detect_and_compute(&grey, &mask, &mut kps, &mut desc, false).ctx(|| "SIFT detection".into())?;
+    det.detect_and_compute(&grey, &mask, &mut kps, &mut desc, false)
+        .ctx(|| "SIFT detection".into())?;
     let mut out = Features::default();
     if kps.is_empty() {
         return Ok(out);
     }
     if desc.typ() != CV_32F || desc.cols() != 128 {
-        return Err(CvError::Invalid { what: "SIFT descriptors".into(), value: format!("type {}", desc.typ()), expected: "128 floats".into() });
+        return Err(CvError::Invalid {
+            what: "SIFT descriptors".into(),
+            value: format!("type {}", desc.typ()),
+            expected: "128 floats".into(),
+        });
     }
     out.points = kps.iter().map(|k| [k.pt().x, k.pt().y]).collect();
     out.descriptors.reserve(kps.len() * 128);
     for r in 0..desc.rows() {
-        out.descriptors.extend_from_slice(desc.at_row::<f32>(r).ctx(|| "descriptors".into())?);
+        out.descriptors
+            .extend_from_slice(desc.at_row::<f32>(r).ctx(|| "descriptors".into())?);
     }
     Ok(out)
 }
 
 /// One-to-one matches between two feature sets: nearest neighbours by FLANN that pass
 /// Lowe's ratio test in both directions and agree.
-pub fn match_one_to_one(a: &Features, b: &Features, ratio: f32) -> Result<Vec<(u32, u32)>, CvError> {
+pub fn match_one_to_one(
+    a: &Features,
+    b: &Features,
+    ratio: f32,
+) -> Result<Vec<(u32, u32)>, CvError> {
     if a.len() < 2 || b.len() < 2 {
         return Ok(Vec::new());
     }
@@ -101,7 +129,9 @@ pub fn match_one_to_one(a: &Features, b: &Features, ratio: f32) -> Result<Vec<(u
     let best = |q: &Mat, t: &Mat| -> Result<Vec<Option<u32>>, CvError> {
         let matcher = FlannBasedMatcher::new_def().ctx(|| "FLANN".into())?;
         let mut m = Vector::<Vector<opencv::core::DMatch>>::new();
-        matcher.knn_train_match_def(q, t, &mut m, 2).ctx(|| "FLANN matching".into())?;
+        matcher
+            .knn_train_match_def(q, t, &mut m, 2)
+            .ctx(|| "FLANN matching".into())?;
         Ok(m.iter()
             .map(|pair| {
                 if pair.len() < 2 {
@@ -125,48 +155,83 @@ pub fn match_one_to_one(a: &Features, b: &Features, ratio: f32) -> Result<Vec<(u
 }
 
 fn points(p: &[[f64; 2]]) -> Vector<Point2f> {
-    p.iter().map(|q| Point2f::new(q[0] as f32, q[1] as f32)).collect()
+    p.iter()
+        .map(|q| Point2f::new(q[0] as f32, q[1] as f32))
+        .collect()
 }
 
 /// Robust similarity (rotation, uniform scale, translation) from `src` to `dst` by
 /// RANSAC with an inlier distance in pixels. Returns the 2x3 matrix and inlier flags.
-pub fn estimate_similarity(src: &[[f64; 2]], dst: &[[f64; 2]], inlier_px: f64) -> Result<Option<([[f64; 3]; 2], Vec<bool>)>, CvError> {
+pub fn estimate_similarity(
+    src: &[[f64; 2]],
+    dst: &[[f64; 2]],
+    inlier_px: f64,
+) -> Result<Option<([[f64; 3]; 2], Vec<bool>)>, CvError> {
     if src.len() < 3 {
         return Ok(None);
     }
     let mut mask = Mat::default();
-    let m = opencv::calib3d::estimate_affine_partial_2d(&points(src), &points(dst), &mut mask, opencv::calib3d::RANSAC, inlier_px, 2000, 0.995, 10)
-        .ctx(|| "similarity".into())?;
+    let m = opencv::calib3d::estimate_affine_partial_2d(
+        &points(src),
+        &points(dst),
+        &mut mask,
+        opencv::calib3d::RANSAC,
+        inlier_px,
+        2000,
+        0.995,
+        10,
+    )
+    .ctx(|| "similarity".into())?;
     if m.empty() {
         return Ok(None);
     }
     let mut a = [[0.0; 3]; 2];
     for (r, row) in a.iter_mut().enumerate() {
         for (c, v) in row.iter_mut().enumerate() {
-            *v = *m.at_2d::<f64>(r as i32, c as i32).ctx(|| "similarity".into())?;
+            *v = *m
+                .at_2d::<f64>(r as i32, c as i32)
+                .ctx(|| "similarity".into())?;
         }
     }
-    let inliers = (0..src.len()).map(|i| mask.at::<u8>(i as i32).map(|v| *v != 0).unwrap_or(false)).collect();
+    let inliers = (0..src.len())
+        .map(|i| mask.at::<u8>(i as i32).map(|v| *v != 0).unwrap_or(false))
+        .collect();
     Ok(Some((a, inliers)))
 }
 
 /// Robust homography from `src` to `dst` (MAGSAC++), inlier distance in pixels.
-pub fn estimate_homography(src: &[[f64; 2]], dst: &[[f64; 2]], inlier_px: f64) -> Result<Option<([[f64; 3]; 3], Vec<bool>)>, CvError> {
+pub fn estimate_homography(
+    src: &[[f64; 2]],
+    dst: &[[f64; 2]],
+    inlier_px: f64,
+) -> Result<Option<([[f64; 3]; 3], Vec<bool>)>, CvError> {
     if src.len() < 4 {
         return Ok(None);
     }
     let mut mask = Mat::default();
-    let h = opencv::calib3d::find_homography_ext(&points(src), &points(dst), opencv::calib3d::USAC_MAGSAC, inlier_px, &mut mask, 2000, 0.995)
-        .ctx(|| "homography".into())?;
+    let h = opencv::calib3d::find_homography_ext(
+        &points(src),
+        &points(dst),
+        opencv::calib3d::USAC_MAGSAC,
+        inlier_px,
+        &mut mask,
+        2000,
+        0.995,
+    )
+    .ctx(|| "homography".into())?;
     if h.empty() {
         return Ok(None);
     }
     let mut a = [[0.0; 3]; 3];
     for (r, row) in a.iter_mut().enumerate() {
         for (c, v) in row.iter_mut().enumerate() {
-            *v = *h.at_2d::<f64>(r as i32, c as i32).ctx(|| "homography".into())?;
+            *v = *h
+                .at_2d::<f64>(r as i32, c as i32)
+                .ctx(|| "homography".into())?;
         }
     }
-    let inliers = (0..src.len()).map(|i| mask.at::<u8>(i as i32).map(|v| *v != 0).unwrap_or(false)).collect();
+    let inliers = (0..src.len())
+        .map(|i| mask.at::<u8>(i as i32).map(|v| *v != 0).unwrap_or(false))
+        .collect();
     Ok(Some((a, inliers)))
 }

@@ -355,7 +355,11 @@ fn scale(b: Base, kd: f64, ks: f64) -> ([f64; 3], [f64; 3]) {
 
 fn base_texel(seed: u64, b: Base, x: f64, y: f64, f: f64, height_cm: f64) -> Texel {
     // Medium-scale albedo variation (needed by feature-based alignment, paper 3.1).
-    let tex = 0.7 + 0.6 * fbm(seed, x / (12.0 * f), y / (12.0 * f), 4);
+    // Contrast-stretched fBm plus sparse dark speckles: real surfaces (grain, pores,
+    // dust, print) have such detail at many scales, and alignment depends on it.
+    let t = ((fbm(seed, x / (4.0 * f), y / (4.0 * f), 5) - 0.5) * 2.5 + 0.5).clamp(0.0, 1.0);
+    let speck = value(seed ^ 0x5BEC, x / (0.7 * f), y / (0.7 * f));
+    let tex = (0.5 + t) * if speck > 0.82 { 0.55 } else { 1.0 };
     let (rho_d, rho_s) = scale(
         b,
         tex,
