@@ -56,7 +56,7 @@ mod tests {
     fn pattern(w: usize, h: usize, blur: usize) -> Vec<f32> {
         let sharp: Vec<f32> = (0..w * h)
             .map(|i| {
-                if ((i % w) / 3 + (i / w) / 3) % 2 == 0 {
+                if ((i % w) / 3 + (i / w) / 3).is_multiple_of(2) {
                     1.0
                 } else {
                     0.0

@@ -12,6 +12,8 @@
 //! reference photo), the global sub-frame solve ([`solve`]), poses ([`pose`]) and the
 //! outputs ([`output`]).
 #![deny(missing_docs)]
+// `!(x > 0.0)` rejects NaN as well as out-of-range values; that is the point.
+#![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod blur;
 pub mod config;

@@ -7,7 +7,7 @@ use svbrdf_core::geometry::{Intrinsics, Mat3, Pose, Vec2};
 use svbrdf_core::homography::Homography;
 use svbrdf_core::image::ImageU8;
 use svbrdf_cv::features::{
-    estimate_homography, estimate_similarity, match_one_to_one, resize, sift, Features,
+    estimate_homography, estimate_similarity, match_one_to_one, resize, sift, Features, Robust,
 };
 
 use crate::blur::blurry_frames;
@@ -17,6 +17,11 @@ use crate::pose::pose_from_homography;
 use crate::reference::ReferenceFrame;
 use crate::solve::{solve, Constraint, SolveReport};
 use crate::{AlignError, DropCounts, Progress};
+
+/// A verified similarity between two frames (2x3, row-major) and its inlier count.
+type SimilarityMatch = ([[f64; 3]; 2], usize);
+/// Verified correspondences (frame a px, frame b px) and the homography a -> b.
+type FineMatch = (Vec<[f64; 2]>, Vec<[f64; 2]>, Mat3);
 
 /// Features of the reference photo with their plane positions (cm).
 pub struct ReferenceFeatures {
@@ -99,30 +104,27 @@ fn coarse_pair(
     a: &FrameData,
     b: &FrameData,
     cfg: &AlignConfig,
-) -> Result<Option<([[f64; 3]; 2], usize)>, AlignError> {
+) -> Result<Option<SimilarityMatch>, AlignError> {
     let long = f64::from(a.width.max(a.height));
     let cs = (f64::from(cfg.coarse_long_side) / long).min(1.0);
     let area = f64::from(a.width) * f64::from(a.height) * cs * cs;
     let min = AlignConfig::scaled_min(cfg.coarse_min_inliers, 960.0 * 540.0, area);
     let m = match_one_to_one(&a.coarse, &b.coarse, 0.8)?;
-    if std::env::var_os("SVBRDF_DEBUG").is_some() {
-        eprintln!(
-            "coarse {} {}: {} matches (min {min})",
-            a.index,
-            b.index,
-            m.len()
-        );
-    }
     if m.len() < min {
         return Ok(None);
     }
     let thr = cfg.coarse_inlier_px * long / 960.0;
     let src = pts(&a.coarse, m.iter().map(|x| x.0));
     let dst = pts(&b.coarse, m.iter().map(|x| x.1));
-    Ok(estimate_similarity(&src, &dst, thr)?.and_then(|(t, inl)| {
-        let n = inl.iter().filter(|v| **v).count();
-        (n >= min).then_some((t, n))
-    }))
+    Ok(estimate_similarity(&src, &dst, thr)?.and_then(
+        |Robust {
+             model: t,
+             inliers: inl,
+         }| {
+            let n = inl.iter().filter(|v| **v).count();
+            (n >= min).then_some((t, n))
+        },
+    ))
 }
 
 fn sim_to_mat(t: &[[f64; 3]; 2]) -> Mat3 {
@@ -223,12 +225,6 @@ fn coarse(
     }
     progress.finish();
     let kept = filter_connectivity(n, &counts);
-    if std::env::var_os("SVBRDF_DEBUG").is_some() {
-        let mut c: Vec<_> = counts.iter().collect();
-        c.sort();
-        eprintln!("counts {c:?}");
-        eprintln!("kept {kept:?}");
-    }
     Ok((
         Connectivity {
             frames: n,
@@ -348,7 +344,7 @@ fn fine_pair(
     a: &FrameData,
     b: &FrameData,
     cfg: &AlignConfig,
-) -> Result<Option<(Vec<[f64; 2]>, Vec<[f64; 2]>, Mat3)>, AlignError> {
+) -> Result<Option<FineMatch>, AlignError> {
     let m = match_one_to_one(&a.fine, &b.fine, 0.8)?;
     let min = fine_min(a, cfg);
     if m.len() < min {
@@ -358,7 +354,11 @@ fn fine_pair(
     let thr = cfg.fine_inlier_px * long / 3840.0;
     let src = pts(&a.fine, m.iter().map(|x| x.0));
     let dst = pts(&b.fine, m.iter().map(|x| x.1));
-    let Some((h, inl)) = estimate_homography(&src, &dst, thr)? else {
+    let Some(Robust {
+        model: h,
+        inliers: inl,
+    }) = estimate_homography(&src, &dst, thr)?
+    else {
         return Ok(None);
     };
     let keep: Vec<usize> = (0..inl.len()).filter(|&k| inl[k]).collect();
@@ -572,11 +572,14 @@ pub fn register(
                     let thr_px = cfg.fine_inlier_px * f64::from(f.width.max(f.height)) / 3840.0;
                     let thr_cm = thr_px * cm_per_px;
                     Ok(match estimate_homography(&src, &dst, thr_cm)? {
-                        Some((_, inl)) if inl.iter().filter(|v| **v).count() >= min => (0..src
-                            .len())
-                            .filter(|&k| inl[k])
-                            .map(|k| (src[k], Vec2::new(dst[k][0], dst[k][1])))
-                            .collect(),
+                        Some(Robust { inliers: inl, .. })
+                            if inl.iter().filter(|v| **v).count() >= min =>
+                        {
+                            (0..src.len())
+                                .filter(|&k| inl[k])
+                                .map(|k| (src[k], Vec2::new(dst[k][0], dst[k][1])))
+                                .collect()
+                        }
                         _ => Vec::new(),
                     })
                 }),
@@ -606,23 +609,6 @@ pub fn register(
         })
         .collect();
     let with_markers = marker_anchors.iter().filter(|a| !a.is_empty()).count();
-    if std::env::var_os("SVBRDF_DEBUG").is_some() {
-        for (i, f) in frames.iter().enumerate() {
-            eprintln!(
-                "frame {} fine {} coarse {} markers {} anchors {}",
-                f.index,
-                f.fine.len(),
-                f.coarse.len(),
-                marker_anchors[i].len(),
-                anchors[i].len()
-            );
-        }
-        eprintln!(
-            "fine pairs ok: {} of {}",
-            fine.iter().filter(|x| x.2.is_some()).count(),
-            fine.len()
-        );
-    }
     let reference_anchored = anchors.iter().filter(|a| !a.is_empty()).count();
 
     // Initial plane_from_pixel homography per frame: from its own absolute anchors,
@@ -768,10 +754,33 @@ pub fn register(
                 (grid.rect(c), h / h[(2, 2)])
             })
             .collect();
-        let centre_h = blocks[centre_cell].1;
-        let Some(pose) = centre_h
-            .try_inverse()
-            .and_then(|inv| pose_from_homography(&intrinsics, &inv))
+        // Paper: decompose the centre sub-frame's homography. A single sub-frame spans
+        // a small patch, which makes rotation and translation hard to tell apart; we
+        // fit one homography to the piecewise map over the central 60% of the frame
+        // (where lens distortion is mild) and decompose that.
+        let mut img_pts = Vec::new();
+        let mut plane_pts = Vec::new();
+        for gy in 0..9 {
+            for gx in 0..9 {
+                let p = Vec2::new(
+                    (0.2 + 0.6 * f64::from(gx) / 8.0) * f64::from(width) - 0.5,
+                    (0.2 + 0.6 * f64::from(gy) / 8.0) * f64::from(height) - 0.5,
+                );
+                if let Some(q) = Homography(blocks[grid.cell(p)].1).apply(p) {
+                    img_pts.push(p);
+                    plane_pts.push(q);
+                }
+            }
+        }
+        let centre_fit = Homography::from_correspondences(&plane_pts, &img_pts).ok();
+        let Some(pose) = centre_fit
+            .and_then(|h| pose_from_homography(&intrinsics, &h.0))
+            .or_else(|| {
+                blocks[centre_cell]
+                    .1
+                    .try_inverse()
+                    .and_then(|inv| pose_from_homography(&intrinsics, &inv))
+            })
         else {
             drops.unregistered += 1;
             continue;

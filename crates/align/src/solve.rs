@@ -17,6 +17,9 @@
 //! The normal equations are assembled block-sparse and factorised with `faer`'s sparse
 //! Cholesky; nothing is densified.
 
+// Index loops over 8x8 blocks read more clearly than iterator chains here.
+#![allow(clippy::needless_range_loop)]
+
 use std::collections::HashMap;
 
 use faer::sparse::{SparseColMat, Triplet};
@@ -155,7 +158,10 @@ impl Normal {
     }
 }
 
-fn residual(c: &Constraint, x: &[f64], with_jac: bool) -> (Vec2, Vec<(usize, [[f64; 8]; 2])>, f64) {
+/// Jacobian blocks of one residual: (parameter block, 2x8 derivatives).
+type Jacobian = Vec<(usize, [[f64; 8]; 2])>;
+
+fn residual(c: &Constraint, x: &[f64], with_jac: bool) -> (Vec2, Jacobian, f64) {
     match *c {
         Constraint::Pair { a, p, b, q, w } => {
             let (pa, ja) = project(&x[a * 8..a * 8 + 8], p);

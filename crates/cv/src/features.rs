@@ -154,6 +154,15 @@ pub fn match_one_to_one(
         .collect())
 }
 
+/// A robustly estimated model and which correspondences agree with it.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Robust<T> {
+    /// The model (row-major matrix).
+    pub model: T,
+    /// Inlier flag per correspondence.
+    pub inliers: Vec<bool>,
+}
+
 fn points(p: &[[f64; 2]]) -> Vector<Point2f> {
     p.iter()
         .map(|q| Point2f::new(q[0] as f32, q[1] as f32))
@@ -166,7 +175,7 @@ pub fn estimate_similarity(
     src: &[[f64; 2]],
     dst: &[[f64; 2]],
     inlier_px: f64,
-) -> Result<Option<([[f64; 3]; 2], Vec<bool>)>, CvError> {
+) -> Result<Option<Robust<[[f64; 3]; 2]>>, CvError> {
     if src.len() < 3 {
         return Ok(None);
     }
@@ -196,7 +205,7 @@ pub fn estimate_similarity(
     let inliers = (0..src.len())
         .map(|i| mask.at::<u8>(i as i32).map(|v| *v != 0).unwrap_or(false))
         .collect();
-    Ok(Some((a, inliers)))
+    Ok(Some(Robust { model: a, inliers }))
 }
 
 /// Robust homography from `src` to `dst` (MAGSAC++), inlier distance in pixels.
@@ -204,7 +213,7 @@ pub fn estimate_homography(
     src: &[[f64; 2]],
     dst: &[[f64; 2]],
     inlier_px: f64,
-) -> Result<Option<([[f64; 3]; 3], Vec<bool>)>, CvError> {
+) -> Result<Option<Robust<[[f64; 3]; 3]>>, CvError> {
     if src.len() < 4 {
         return Ok(None);
     }
@@ -233,5 +242,5 @@ pub fn estimate_homography(
     let inliers = (0..src.len())
         .map(|i| mask.at::<u8>(i as i32).map(|v| *v != 0).unwrap_or(false))
         .collect();
-    Ok(Some((a, inliers)))
+    Ok(Some(Robust { model: a, inliers }))
 }

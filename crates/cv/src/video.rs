@@ -43,6 +43,15 @@ impl VideoReader {
                 message: "no such video file".into(),
             });
         }
+        if std::fs::metadata(path)
+            .map(|m| m.len() == 0)
+            .unwrap_or(false)
+        {
+            return Err(CvError::File {
+                path: path.into(),
+                message: "the video file is empty".into(),
+            });
+        }
         let name = path.to_string_lossy().into_owned();
         let mut cap = videoio::VideoCapture::from_file(&name, videoio::CAP_FFMPEG)
             .ctx(|| format!("opening {name}"))?;

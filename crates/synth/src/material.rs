@@ -127,9 +127,11 @@ impl MaterialMaps {
             for c in 0..w {
                 let t = &texels[r * w + c];
                 for k in 0..3 {
-                    let d = t.rho_d[k].clamp(0.0, 1.0);
-                    diffuse.pixel_mut(c, r)[k] = d as f32;
-                    specular.pixel_mut(c, r)[k] = t.rho_s[k].clamp(0.0, 1.0 - d) as f32;
+                    // Clamp in f32, the stored precision, so rho_d + rho_s <= 1 holds
+                    // exactly for the stored values.
+                    let d = (t.rho_d[k] as f32).clamp(0.0, 0.95);
+                    diffuse.pixel_mut(c, r)[k] = d;
+                    specular.pixel_mut(c, r)[k] = (t.rho_s[k] as f32).clamp(0.0, 1.0 - d);
                 }
                 roughness
                     .pixel_mut(c, r)
@@ -359,7 +361,7 @@ fn base_texel(seed: u64, b: Base, x: f64, y: f64, f: f64, height_cm: f64) -> Tex
     // dust, print) have such detail at many scales, and alignment depends on it.
     let t = ((fbm(seed, x / (4.0 * f), y / (4.0 * f), 5) - 0.5) * 2.5 + 0.5).clamp(0.0, 1.0);
     let speck = value(seed ^ 0x5BEC, x / (0.7 * f), y / (0.7 * f));
-    let tex = (0.5 + t) * if speck > 0.82 { 0.55 } else { 1.0 };
+    let tex = (0.55 + 0.9 * t) * if speck > 0.82 { 0.55 } else { 1.0 };
     let (rho_d, rho_s) = scale(
         b,
         tex,

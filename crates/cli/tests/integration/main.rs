@@ -1,6 +1,7 @@
 //! Integration tests: one binary, driving the real `svbrdf` executable.
 #![allow(clippy::unwrap_used, clippy::needless_range_loop)]
 
+mod align;
 mod bad_input;
 mod synth;
 mod util;

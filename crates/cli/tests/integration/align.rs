@@ -1,0 +1,165 @@
+//! `svbrdf align` on the tiny simulated capture: accuracy against ground truth (looser
+//! bounds than the paper preset's benchmark targets), outputs, and bad input.
+
+use std::path::Path;
+
+use svbrdf_core::capture::{FrameMapping, RegisteredCapture};
+
+use crate::util::{stderr, svbrdf, temp_dir, tiny_capture};
+
+fn align(cap: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
+    let mut args = vec![
+        "align",
+        "--video",
+        cap.join("flash.mp4").to_str().unwrap(),
+        "--reference",
+        cap.join("reference.jpg").to_str().unwrap(),
+        "--camera",
+        cap.join("camera.json").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]
+    .into_iter()
+    .map(String::from)
+    .collect::<Vec<_>>();
+    args.extend(extra.iter().map(|s| s.to_string()));
+    let refs: Vec<&str> = args.iter().map(String::as_str).collect();
+    svbrdf(&refs)
+}
+
+#[test]
+fn tiny_alignment_matches_ground_truth() {
+    let cap = tiny_capture();
+    let out = temp_dir().join("aligned");
+    let o = align(cap, &out, &["--px-per-cm", "24"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(text.contains("kept") && text.contains("timings"), "{text}");
+    for f in [
+        "capture.json",
+        "panorama.png",
+        "trajectory.png",
+        "connectivity.png",
+        "align.json",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let capture = RegisteredCapture::load(&out).unwrap();
+    assert!(
+        capture.frames.len() >= 12,
+        "only {} frames kept",
+        capture.frames.len()
+    );
+    assert!(capture.frames.iter().all(
+        |f| matches!(&f.mapping, FrameMapping::Homographies { subframes } if subframes.len() >= 15)
+    ));
+
+    let o = svbrdf(&[
+        "bench",
+        "--no-brdf",
+        "--align-capture",
+        out.to_str().unwrap(),
+        "--truth",
+        cap.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
+    eprintln!("{v}");
+    let get = |k: &str| v[k].as_f64().unwrap();
+    // Paper-preset targets are 0.25 / 0.5 px and 2 mm; tiny frames are 8x smaller.
+    assert!(get("align_error_px_median") < 0.5, "{v}");
+    assert!(get("align_error_px_p95") < 1.5, "{v}");
+    assert!(get("camera_error_mm_median") < 3.0, "{v}");
+}
+
+#[test]
+fn reference_without_markers_names_found_ids() {
+    let cap = tiny_capture();
+    let root = temp_dir();
+    // A crop-free photo with no markers: a video frame's worth of material only.
+    let img = svbrdf_cv::read_image(&cap.join("ground_truth/maps/diffuse.png")).unwrap();
+    svbrdf_cv::write_jpeg(&root.join("plain.jpg"), &img, 90).unwrap();
+    let out = root.join("out");
+    let o = svbrdf(&[
+        "align",
+        "--video",
+        cap.join("flash.mp4").to_str().unwrap(),
+        "--reference",
+        root.join("plain.jpg").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert_eq!(e.trim().lines().count(), 1, "{e}");
+    assert!(
+        e.contains("4 distinct markers") && e.contains("found ids []"),
+        "{e}"
+    );
+    assert!(!out.exists());
+}
+
+#[test]
+fn wrong_dictionary_and_unreadable_video() {
+    let cap = tiny_capture();
+    let root = temp_dir();
+    std::fs::write(
+        root.join("camera.json"),
+        r#"{"marker_dictionary": "DICT_4X4_50"}"#,
+    )
+    .unwrap();
+    let out = root.join("out");
+    let o = svbrdf(&[
+        "align",
+        "--video",
+        cap.join("flash.mp4").to_str().unwrap(),
+        "--reference",
+        cap.join("reference.jpg").to_str().unwrap(),
+        "--camera",
+        root.join("camera.json").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("DICT_4X4_50") && e.contains("found ids"), "{e}");
+
+    std::fs::write(
+        root.join("camera.json"),
+        r#"{"marker_dictionary": "DICT_9X9_1"}"#,
+    )
+    .unwrap();
+    let o = svbrdf(&[
+        "align",
+        "--video",
+        "x.mp4",
+        "--reference",
+        "y.jpg",
+        "--camera",
+        root.join("camera.json").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(
+        stderr(&o).contains("DICT_9X9_1") && stderr(&o).contains("DICT_6X6_250"),
+        "{}",
+        stderr(&o)
+    );
+
+    std::fs::write(root.join("empty.mp4"), b"").unwrap();
+    let o = svbrdf(&[
+        "align",
+        "--video",
+        root.join("empty.mp4").to_str().unwrap(),
+        "--reference",
+        cap.join("reference.jpg").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert_eq!(e.trim().lines().count(), 1, "{e}");
+    assert!(e.contains("empty.mp4"), "{e}");
+    assert!(!out.exists());
+}
