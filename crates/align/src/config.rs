@@ -121,6 +121,9 @@ pub struct AlignConfig {
     pub overlap_weight: f64,
     /// Gauss-Newton iterations of the global solve.
     pub iterations: usize,
+    /// At most this many fine pairs per frame (its strongest coarse connections; the
+    /// time chain is always kept). Fine matching is the costliest step at 4K.
+    pub max_pairs_per_frame: usize,
     /// Test every pair in coarse matching instead of predicted overlaps (benchmarks).
     pub all_pairs: bool,
 }
@@ -146,6 +149,7 @@ impl Default for AlignConfig {
             match_reference: true,
             overlap_weight: 1.0,
             iterations: 8,
+            max_pairs_per_frame: 8,
             all_pairs: false,
         }
     }

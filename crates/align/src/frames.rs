@@ -137,7 +137,8 @@ fn process(
     })
 }
 
-/// Decode every `frame_step`-th frame and process batches in parallel.
+/// Decode every `frame_step`-th frame on one thread while the others process the
+/// previous batch in parallel (decoding 4K H.264 is a large share of the work).
 pub fn decode_frames(
     video: &Path,
     cfg: &AlignConfig,
@@ -149,38 +150,60 @@ pub fn decode_frames(
     let step = u64::from(cfg.camera.frame_step);
     progress.stage("decode + features", info.frame_count.div_ceil(step));
     let batch_size = 2 * rayon::current_num_threads().max(1);
+    let (tx, rx) = std::sync::mpsc::sync_channel::<Result<(u64, ImageU8), AlignError>>(batch_size);
     let mut out = Vec::new();
-    let mut batch: Vec<(u64, ImageU8)> = Vec::with_capacity(batch_size);
-    loop {
-        let idx = reader.next_index();
-        let frame = if idx % step == 0 {
-            reader.read()?
-        } else {
-            if !reader.skip()? {
-                None
+    std::thread::scope(|scope| -> Result<(), AlignError> {
+        scope.spawn(move || loop {
+            let idx = reader.next_index();
+            let frame = if idx % step == 0 {
+                reader.read().map_err(AlignError::from)
             } else {
-                continue;
+                match reader.skip() {
+                    Ok(true) => continue,
+                    Ok(false) => Ok(None),
+                    Err(e) => Err(e.into()),
+                }
+            };
+            match frame {
+                Ok(Some(f)) => {
+                    if tx.send(Ok((idx, f))).is_err() {
+                        return;
+                    }
+                }
+                Ok(None) => return,
+                Err(e) => {
+                    let _ = tx.send(Err(e));
+                    return;
+                }
             }
-        };
-        let done = frame.is_none();
-        if let Some(f) = frame {
-            batch.push((idx, f));
-        }
-        if batch.len() == batch_size || (done && !batch.is_empty()) {
-            let processed: Vec<Result<FrameData, AlignError>> = batch
-                .par_iter()
-                .map(|(i, img)| process(img, *i, info.fps, cfg, dict))
-                .collect();
-            for p in processed {
-                out.push(p?);
+        });
+        // Owned here so that an early error drops it and unblocks the decoder thread.
+        let rx = rx;
+        let mut batch: Vec<(u64, ImageU8)> = Vec::with_capacity(batch_size);
+        let flush =
+            |batch: &mut Vec<(u64, ImageU8)>, out: &mut Vec<FrameData>| -> Result<(), AlignError> {
+                let processed: Vec<Result<FrameData, AlignError>> = batch
+                    .par_iter()
+                    .map(|(i, img)| process(img, *i, info.fps, cfg, dict))
+                    .collect();
+                for p in processed {
+                    out.push(p?);
+                }
+                progress.advance(batch.len() as u64);
+                batch.clear();
+                Ok(())
+            };
+        for item in rx.iter() {
+            batch.push(item?);
+            if batch.len() == batch_size {
+                flush(&mut batch, &mut out)?;
             }
-            progress.advance(batch.len() as u64);
-            batch.clear();
         }
-        if done {
-            break;
+        if !batch.is_empty() {
+            flush(&mut batch, &mut out)?;
         }
-    }
+        Ok(())
+    })?;
     progress.finish();
     if out.is_empty() {
         return Err(AlignError::Video(format!(

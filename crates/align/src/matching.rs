@@ -530,12 +530,35 @@ pub fn register(
         )));
     }
     let in_comp: HashMap<usize, usize> = comp.iter().enumerate().map(|(k, &i)| (i, k)).collect();
-    let pairs: Vec<(usize, usize)> = connectivity
+    let all: Vec<(usize, usize)> = connectivity
         .kept
         .iter()
         .filter(|(i, j)| in_comp.contains_key(i) && in_comp.contains_key(j))
         .map(|&(i, j)| (in_comp[&i], in_comp[&j]))
         .collect();
+    // Keep each frame's strongest connections (and the time chain).
+    let mut pairs = BTreeSet::new();
+    let strength = |i: usize, j: usize| {
+        connectivity
+            .counts
+            .get(&(comp[i], comp[j]))
+            .copied()
+            .unwrap_or(0)
+    };
+    for f in 0..comp.len() {
+        let mut mine: Vec<(usize, usize)> = all
+            .iter()
+            .copied()
+            .filter(|&(i, j)| i == f || j == f)
+            .collect();
+        mine.sort_by_key(|&(i, j)| std::cmp::Reverse(strength(i, j)));
+        for (k, p) in mine.into_iter().enumerate() {
+            if k < cfg.max_pairs_per_frame || p.1 == p.0 + 1 {
+                pairs.insert(p);
+            }
+        }
+    }
+    let pairs: Vec<(usize, usize)> = pairs.into_iter().collect();
     let frames: Vec<FrameData> = comp.iter().map(|&i| frames[i].clone()).collect();
     let n = frames.len();
 
