@@ -254,6 +254,51 @@ fn run_synth(
     Ok(summary)
 }
 
+/// The main job: synthesize a small capture, align it, and compare with ground truth.
+fn run_demo(a: &DemoArgs) -> Result<()> {
+    let cfg = SynthConfig::tiny();
+    let capture = a.out.join("capture");
+    println!("== synthesizing a {} capture of the built-in material", cfg.preset);
+    let s = run_synth(&cfg, &capture, true)?;
+    print_summary(&s);
+    println!();
+    println!("== aligning the video to the markers' plane");
+    let args = AlignArgs {
+        video: capture.join("flash.mp4"),
+        reference: capture.join("reference.jpg"),
+        camera: Some(capture.join("camera.json")),
+        out: a.out.join("aligned"),
+        region: None,
+        px_per_cm: Some(cfg.map_px_per_cm),
+        fine_long_side: None,
+        fine_features: None,
+        fine_min_inliers: None,
+        subframes: None,
+        all_pairs: false,
+        overwrite: true,
+    };
+    run_align(&args)?;
+    println!();
+    println!("== accuracy against the simulator's ground truth");
+    let acc = bench::align_accuracy(&args.out, &capture)?;
+    let get = |k: &str| acc[k].as_f64().unwrap_or(f64::NAN);
+    println!(
+        "alignment error: median {:.3} px, 95th percentile {:.3} px (output pixels at {} px/cm)",
+        get("align_error_px_median"),
+        get("align_error_px_p95"),
+        cfg.map_px_per_cm
+    );
+    println!(
+        "camera position error: median {:.2} mm; flash position error: median {:.2} mm",
+        get("camera_error_mm_median"),
+        get("flash_error_mm_median")
+    );
+    println!();
+    println!("look at {0}/aligned/panorama.png and {0}/aligned/trajectory.png;", a.out.display());
+    println!("the fitting stage (issue 4) will turn {}/aligned/capture.json into material maps.", a.out.display());
+    Ok(())
+}
+
 fn print_summary(s: &svbrdf_synth::SynthSummary) {
     println!("wrote {}", s.out.display());
     for f in &s.files {
@@ -274,14 +319,7 @@ fn main() -> ExitCode {
         Command::Synth(a) => synth_config(&a)
             .and_then(|cfg| run_synth(&cfg, &a.out, a.overwrite))
             .map(|s| print_summary(&s)),
-        Command::Demo(a) => {
-            let cfg = SynthConfig::tiny();
-            run_synth(&cfg, &a.out, true).map(|s| {
-                print_summary(&s);
-                println!("next: the alignment and fitting stages will run on this capture once they exist;");
-                println!("      the ground-truth registered capture is in {}/registered/", s.out.display());
-            })
-        }
+        Command::Demo(a) => run_demo(&a),
         Command::Align(a) => run_align(&a),
         Command::Bench(a) => bench::run(&a),
     };
