@@ -144,6 +144,8 @@ pub struct AlignSummary {
     pub unknowns: usize,
     /// Wall-clock seconds per stage.
     pub timings: Vec<(String, f64)>,
+    /// Coarse pairs verified by RANSAC, as (video frame, video frame, inliers).
+    pub verified_pairs: Vec<(u64, u64, usize)>,
 }
 
 /// Inputs of [`align`].

@@ -79,6 +79,8 @@ pub struct Registration {
     pub drops: DropCounts,
     /// Coarse connectivity (over frames after blur selection).
     pub connectivity: Connectivity,
+    /// Coarse pairs verified by RANSAC, as (video frame, video frame, inliers).
+    pub verified_pairs: Vec<(u64, u64, usize)>,
     /// Coarse pairs tested.
     pub coarse_tested: usize,
     /// Fine pairs used.
@@ -519,6 +521,12 @@ pub fn register(
 
     // Coarse alignment and the connectivity map.
     let (connectivity, coarse_tested) = coarse(&frames, cfg, progress)?;
+    let mut verified_pairs: Vec<(u64, u64, usize)> = connectivity
+        .counts
+        .iter()
+        .map(|(&(i, j), &c)| (frames[i].index, frames[j].index, c))
+        .collect();
+    verified_pairs.sort_unstable();
     let comp = largest_component(frames.len(), &connectivity.kept);
     drops.disconnected = frames.len() - comp.len();
     lap("coarse alignment");
@@ -831,6 +839,7 @@ pub fn register(
         intrinsics,
         drops,
         connectivity,
+        verified_pairs,
         coarse_tested,
         fine_pairs,
         reference_anchored,

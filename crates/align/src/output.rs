@@ -228,6 +228,7 @@ pub fn write(
         solve_median_cm: reg.solve.median_after,
         unknowns: reg.solve.unknowns,
         timings,
+        verified_pairs: reg.verified_pairs.clone(),
     };
     #[derive(serde::Serialize)]
     struct Record<'a> {

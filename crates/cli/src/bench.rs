@@ -19,6 +19,10 @@ pub struct BenchArgs {
     /// A folder written by `svbrdf synth` (its ground_truth/truth.json is used).
     #[arg(long)]
     truth: Option<std::path::PathBuf>,
+    /// With --align-capture: a second alignment of the same video made with
+    /// `--all-pairs`; reports how many of its coarse connections the default search found.
+    #[arg(long, requires = "align_capture")]
+    all_pairs_capture: Option<std::path::PathBuf>,
     /// Skip the BRDF throughput measurements.
     #[arg(long)]
     no_brdf: bool,
@@ -55,6 +59,54 @@ fn observations(n: usize) -> Vec<LightView> {
             LightView::from_points(s, cam + Vec3::new(1.4, -0.3, 0.0), cam)
         })
         .collect()
+}
+
+/// Peak resident memory of this process (Linux `VmHWM`), kB.
+pub fn peak_memory_kb() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
+    line.split_whitespace().nth(1)?.parse().ok()
+}
+
+/// How many of the connections found by testing all pairs the predicted-overlap
+/// search also found (both runs' `align.json`).
+pub fn connectivity_recall(
+    all_pairs_dir: &std::path::Path,
+    predicted_dir: &std::path::Path,
+) -> Result<serde_json::Value> {
+    let load = |d: &std::path::Path| -> Result<(Vec<(u64, u64)>, f64)> {
+        let v: serde_json::Value =
+            serde_json::from_str(&std::fs::read_to_string(d.join("align.json"))?)?;
+        let pairs = v["summary"]["verified_pairs"]
+            .as_array()
+            .map(|a| {
+                a.iter()
+                    .filter_map(|p| Some((p[0].as_u64()?, p[1].as_u64()?)))
+                    .collect()
+            })
+            .unwrap_or_default();
+        let coarse = v["summary"]["timings"]
+            .as_array()
+            .map(|a| {
+                a.iter()
+                    .filter(|t| t[0] == "coarse alignment")
+                    .filter_map(|t| t[1].as_f64())
+                    .sum()
+            })
+            .unwrap_or(f64::NAN);
+        Ok((pairs, coarse))
+    };
+    let (all, t_all) = load(all_pairs_dir)?;
+    let (pred, t_pred) = load(predicted_dir)?;
+    let found = all.iter().filter(|p| pred.contains(p)).count();
+    Ok(json!({
+        "bench": "coarse_overlap_search",
+        "all_pairs_connections": all.len(),
+        "predicted_connections": pred.len(),
+        "recall": found as f64 / all.len().max(1) as f64,
+        "coarse_seconds_all_pairs": t_all,
+        "coarse_seconds_predicted": t_pred,
+    }))
 }
 
 /// Alignment accuracy against simulator ground truth.
@@ -129,7 +181,18 @@ pub fn align_accuracy(
 
 pub fn run(a: &BenchArgs) -> Result<()> {
     if let (Some(c), Some(t)) = (&a.align_capture, &a.truth) {
-        println!("{}", align_accuracy(c, t)?);
+        let mut v = align_accuracy(c, t)?;
+        if let Ok(text) = std::fs::read_to_string(c.join("align.json")) {
+            if let Ok(rec) = serde_json::from_str::<serde_json::Value>(&text) {
+                v["timings"] = rec["summary"]["timings"].clone();
+                v["frames"] = rec["summary"]["frames"].clone();
+            }
+        }
+        v["machine"] = machine();
+        println!("{v}");
+        if let Some(all) = &a.all_pairs_capture {
+            println!("{}", connectivity_recall(all, c)?);
+        }
         if a.no_brdf {
             return Ok(());
         }

@@ -193,6 +193,9 @@ fn run_align(a: &AlignArgs) -> Result<()> {
         .map(|(n, v)| format!("{n} {v:.1} s"))
         .collect();
     println!("timings: {}", t.join(", "));
+    if let Some(kb) = bench::peak_memory_kb() {
+        println!("peak memory: {:.0} MB", kb as f64 / 1024.0);
+    }
     Ok(())
 }
 
@@ -258,7 +261,10 @@ fn run_synth(
 fn run_demo(a: &DemoArgs) -> Result<()> {
     let cfg = SynthConfig::tiny();
     let capture = a.out.join("capture");
-    println!("== synthesizing a {} capture of the built-in material", cfg.preset);
+    println!(
+        "== synthesizing a {} capture of the built-in material",
+        cfg.preset
+    );
     let s = run_synth(&cfg, &capture, true)?;
     print_summary(&s);
     println!();
@@ -294,8 +300,14 @@ fn run_demo(a: &DemoArgs) -> Result<()> {
         get("flash_error_mm_median")
     );
     println!();
-    println!("look at {0}/aligned/panorama.png and {0}/aligned/trajectory.png;", a.out.display());
-    println!("the fitting stage (issue 4) will turn {}/aligned/capture.json into material maps.", a.out.display());
+    println!(
+        "look at {0}/aligned/panorama.png and {0}/aligned/trajectory.png;",
+        a.out.display()
+    );
+    println!(
+        "the fitting stage (issue 4) will turn {}/aligned/capture.json into material maps.",
+        a.out.display()
+    );
     Ok(())
 }
 

@@ -32,6 +32,7 @@ pub struct VideoReader {
     info: VideoInfo,
     next_index: u64,
     frame: Mat,
+    pending: Option<ImageU8>,
 }
 
 impl VideoReader {
@@ -66,27 +67,41 @@ impl VideoReader {
         let get = |cap: &videoio::VideoCapture, p: i32| {
             cap.get(p).ctx(|| format!("reading properties of {name}"))
         };
-        let mut w = get(&cap, videoio::CAP_PROP_FRAME_WIDTH)? as u32;
-        let mut h = get(&cap, videoio::CAP_PROP_FRAME_HEIGHT)? as u32;
-        let rot = get(&cap, videoio::CAP_PROP_ORIENTATION_META)
-            .unwrap_or(0.0)
-            .round() as i64;
-        if rot.rem_euclid(180) == 90 {
-            std::mem::swap(&mut w, &mut h);
-        }
         let info = VideoInfo {
-            width: w,
-            height: h,
+            width: get(&cap, videoio::CAP_PROP_FRAME_WIDTH)? as u32,
+            height: get(&cap, videoio::CAP_PROP_FRAME_HEIGHT)? as u32,
             fps: get(&cap, videoio::CAP_PROP_FPS)?,
             frame_count: get(&cap, videoio::CAP_PROP_FRAME_COUNT)?.max(0.0) as u64,
         };
-        Ok(Self {
+        let mut reader = Self {
             cap,
             path: path.into(),
             info,
             next_index: 0,
             frame: Mat::default(),
-        })
+            pending: None,
+        };
+        // The container's size ignores rotation metadata while decoded frames honour it,
+        // so take the size from the first frame (kept for the first `read`).
+        let first = reader.decode()?.ok_or_else(|| CvError::File {
+            path: path.into(),
+            message: "the video has no decodable frames".into(),
+        })?;
+        reader.info.width = first.width as u32;
+        reader.info.height = first.height as u32;
+        reader.pending = Some(first);
+        Ok(reader)
+    }
+
+    fn decode(&mut self) -> Result<Option<ImageU8>, CvError> {
+        let ok = self
+            .cap
+            .read(&mut self.frame)
+            .ctx(|| format!("decoding {}", self.path.display()))?;
+        if !ok || self.frame.empty() {
+            return Ok(None);
+        }
+        mat_to_rgb(&self.frame).map(Some)
     }
 
     /// Stream properties.
@@ -101,6 +116,10 @@ impl VideoReader {
 
     /// Decode and drop the next frame without converting it (for skipping).
     pub fn skip(&mut self) -> Result<bool, CvError> {
+        if self.pending.take().is_some() {
+            self.next_index += 1;
+            return Ok(true);
+        }
         let ok = self
             .cap
             .grab()
@@ -113,15 +132,14 @@ impl VideoReader {
 
     /// The next frame, or `None` at the end of the stream.
     pub fn read(&mut self) -> Result<Option<ImageU8>, CvError> {
-        let ok = self
-            .cap
-            .read(&mut self.frame)
-            .ctx(|| format!("decoding {}", self.path.display()))?;
-        if !ok || self.frame.empty() {
-            return Ok(None);
+        let frame = match self.pending.take() {
+            Some(f) => Some(f),
+            None => self.decode()?,
+        };
+        if frame.is_some() {
+            self.next_index += 1;
         }
-        self.next_index += 1;
-        mat_to_rgb(&self.frame).map(Some)
+        Ok(frame)
     }
 }
 

@@ -265,7 +265,8 @@ impl SynthConfig {
             reference: ReferenceSpec {
                 width: 2988,
                 height: 5312,
-                distance_cm: 28.0,
+                // Far enough that the short side spans the markers of a 20 cm region.
+                distance_cm: 33.0,
                 supersample: 2,
                 ..Self::tiny().reference
             },

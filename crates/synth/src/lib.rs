@@ -251,6 +251,23 @@ pub fn synthesize(
     );
     svbrdf_cv::write_jpeg(&dir.join("reference.jpg"), &ref_img, r.jpeg_quality)?;
     files.push("reference.jpg".into());
+    for m in &scene.markers {
+        for c in &m.corners {
+            let inside = ref_cam
+                .project(Vec3::from(*c))
+                .is_some_and(|p| ref_cam.intrinsics.contains(p));
+            if !inside {
+                return Err(SynthError::invalid(
+                    "reference distance",
+                    format!("{} cm", r.distance_cm),
+                    format!(
+                        "a distance at which all four markers fit in the {}x{} reference photo",
+                        r.width, r.height
+                    ),
+                ));
+            }
+        }
+    }
     let marker_corners_px = scene
         .markers
         .iter()

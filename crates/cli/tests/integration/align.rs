@@ -163,3 +163,44 @@ fn wrong_dictionary_and_unreadable_video() {
     assert!(e.contains("empty.mp4"), "{e}");
     assert!(!out.exists());
 }
+
+#[test]
+fn rotation_metadata_gives_upright_frames() {
+    let cap = tiny_capture();
+    let root = temp_dir();
+    let rotated = root.join("rot.mp4");
+    let st = std::process::Command::new("ffmpeg")
+        .args(["-v", "error", "-y", "-i"])
+        .arg(cap.join("flash.mp4"))
+        .args(["-c", "copy", "-metadata:s:v:0", "rotate=90"])
+        .arg(&rotated)
+        .status()
+        .expect("ffmpeg must be installed (the setup script installs it)");
+    assert!(st.success());
+    let mut a = svbrdf_cv::video::VideoReader::open(&cap.join("flash.mp4")).unwrap();
+    let mut b = svbrdf_cv::video::VideoReader::open(&rotated).unwrap();
+    let (ia, ib) = (a.info(), b.info());
+    assert_eq!(
+        (ib.width, ib.height),
+        (ia.height, ia.width),
+        "rotation metadata not applied to the reported size"
+    );
+    let (fa, fb) = (a.read().unwrap().unwrap(), b.read().unwrap().unwrap());
+    assert_eq!((fb.width, fb.height), (fa.height, fa.width));
+    // Same pixels, turned by a quarter either way.
+    let (w, h) = (fa.width, fa.height);
+    let cw = (0..h).all(|y| {
+        (0..w)
+            .step_by(7)
+            .all(|x| fa.pixel(x, y) == fb.pixel(h - 1 - y, x))
+    });
+    let ccw = (0..h).all(|y| {
+        (0..w)
+            .step_by(7)
+            .all(|x| fa.pixel(x, y) == fb.pixel(y, w - 1 - x))
+    });
+    assert!(
+        cw || ccw,
+        "rotated frame does not match the original turned by 90 degrees"
+    );
+}

@@ -310,10 +310,12 @@ fn demo_writes_a_capture() {
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8_lossy(&o.stdout);
     assert!(
-        text.contains("flash.mp4") && text.contains("frames"),
+        text.contains("flash.mp4") && text.contains("alignment error: median"),
         "{text}"
     );
-    assert!(out.join("registered/capture.json").is_file());
+    assert!(out.join("capture/registered/capture.json").is_file());
+    assert!(out.join("aligned/capture.json").is_file());
+    assert!(out.join("aligned/panorama.png").is_file());
 }
 
 #[test]
