@@ -78,13 +78,16 @@ fn process(
     } else {
         img.clone()
     };
+    let lum = crate::corners::Luminance::new(&marker_img);
+    let cells = dict.cells();
     let markers = detect_markers(&marker_img, dict)?
         .into_iter()
-        .map(|m| MarkerObservation {
-            id: m.id,
-            corners: m
-                .corners
-                .map(|c| Vec2::new((c[0] + 0.5) / ms - 0.5, (c[1] + 0.5) / ms - 0.5)),
+        .map(|m| {
+            let c = crate::corners::refine_corners(&lum, &m.corners.map(|c| Vec2::new(c[0], c[1])), cells);
+            MarkerObservation {
+                id: m.id,
+                corners: c.map(|p| Vec2::new((p.x + 0.5) / ms - 0.5, (p.y + 0.5) / ms - 0.5)),
+            }
         })
         .collect();
     let exclude = |w: usize, h: usize| {

@@ -17,6 +17,7 @@
 
 pub mod blur;
 pub mod config;
+pub mod corners;
 mod frames;
 mod matching;
 pub mod output;
@@ -186,13 +187,17 @@ pub fn align(
         cfg.camera.fov_deg,
     )?;
     let found = svbrdf_cv::aruco::detect_markers(&ref_img, dict)?;
+    let lum = corners::Luminance::new(&ref_img);
+    let cells = dict.cells();
     let obs: Vec<reference::MarkerObservation> = found
         .iter()
         .map(|m| reference::MarkerObservation {
             id: m.id,
-            corners: m
-                .corners
-                .map(|c| svbrdf_core::geometry::Vec2::new(c[0], c[1])),
+            corners: corners::refine_corners(
+                &lum,
+                &m.corners.map(|c| svbrdf_core::geometry::Vec2::new(c[0], c[1])),
+                cells,
+            ),
         })
         .collect();
     let reference = reference::reference_frame(&ref_k, &obs, cfg.camera.marker_size_cm, 4)

@@ -118,6 +118,63 @@ pub fn marker_pose(k: &Intrinsics, corners: &[Vec2; 4], size: f64) -> Option<(Ma
     Some((r, t))
 }
 
+/// Joint plane from all markers: every marker, back-projected onto the plane `n.X + d
+/// = 0`, must be a square of side `size`. Markers spread across the photo constrain
+/// the tilt far better than any single marker's pose (whose normal is uncertain to
+/// several tenths of a degree), so this refines the averaged single-marker estimate
+/// by Gauss-Newton on the plane's two tilt angles and distance.
+fn refine_plane(k: &Intrinsics, found: &[MarkerObservation], size: f64, n0: Vec3, d0: f64) -> (Vec3, f64) {
+    let rays: Vec<[Vec3; 4]> = found
+        .iter()
+        .map(|m| m.corners.map(|c| Vec3::new((c.x - k.cx) / k.fx, (c.y - k.cy) / k.fy, 1.0)))
+        .collect();
+    let normal = |p: &[f64; 3]| Vec3::new(p[0], p[1], -1.0).normalize();
+    let residuals = |p: &[f64; 3]| -> Vec<f64> {
+        let n = normal(p);
+        let d = p[2];
+        let mut r = Vec::with_capacity(rays.len() * 6);
+        for ray in &rays {
+            let pts = ray.map(|v| v * (-d / n.dot(&v)));
+            for (a, b, len) in [(0, 1, size), (1, 2, size), (2, 3, size), (3, 0, size), (0, 2, size * std::f64::consts::SQRT_2), (1, 3, size * std::f64::consts::SQRT_2)] {
+                r.push((pts[a] - pts[b]).norm() - len);
+            }
+        }
+        r
+    };
+    // Parameters: the normal's x and y slopes (n ~ (a, b, -1)) and the distance.
+    let mut p = [n0.x / -n0.z, n0.y / -n0.z, d0];
+    for _ in 0..15 {
+        let r0 = residuals(&p);
+        let mut jt = [vec![0.0; r0.len()], vec![0.0; r0.len()], vec![0.0; r0.len()]];
+        for (i, row) in jt.iter_mut().enumerate() {
+            let h = if i < 2 { 1e-7 } else { 1e-6 * p[2].abs().max(1.0) };
+            let mut q = p;
+            q[i] += h;
+            for (j, v) in residuals(&q).iter().enumerate() {
+                row[j] = (v - r0[j]) / h;
+            }
+        }
+        let mut a = Mat3::zeros();
+        let mut g = Vec3::zeros();
+        for i in 0..3 {
+            for j in 0..3 {
+                a[(i, j)] = jt[i].iter().zip(&jt[j]).map(|(x, y)| x * y).sum();
+            }
+            g[i] = jt[i].iter().zip(&r0).map(|(x, y)| x * y).sum();
+        }
+        let Some(step) = a.try_inverse().map(|inv| inv * g) else { break };
+        p = [p[0] - step.x, p[1] - step.y, p[2] - step.z];
+        if step.norm() < 1e-12 {
+            break;
+        }
+    }
+    if p.iter().all(|v| v.is_finite()) && p[2] > 0.0 {
+        (normal(&p), p[2])
+    } else {
+        (n0, d0)
+    }
+}
+
 /// Build the world frame from the markers found in the reference photo.
 pub fn reference_frame(
     k: &Intrinsics,
@@ -152,8 +209,7 @@ pub fn reference_frame(
         d_sum += -n.dot(&t) * w;
         w_sum += w;
     }
-    let n = n_sum.normalize();
-    let d = d_sum / w_sum;
+    let (n, d) = refine_plane(k, found, marker_size, n_sum.normalize(), d_sum / w_sum);
     if !(d > 0.0) || n.z >= -0.2 {
         return Err(AlignError::Markers(format!(
             "the markers in the reference photo give an implausible plane (distance {d:.2} cm, normal {:.2} {:.2} {:.2})",

@@ -49,6 +49,11 @@ impl Dictionary {
         self.name
     }
 
+    /// Cells per marker side including the one-cell border (8 for 6x6 dictionaries).
+    pub fn cells(&self) -> usize {
+        self.get().map(|d| d.marker_size() as usize + 2).unwrap_or(8)
+    }
+
     fn get(&self) -> Result<opencv::core::Ptr<opencv::aruco::Dictionary>, CvError> {
         opencv::aruco::get_predefined_dictionary_i32(self.id)
             .ctx(|| format!("loading {}", self.name))
@@ -105,6 +110,11 @@ pub fn detect_markers(img: &ImageU8, dict: Dictionary) -> Result<Vec<DetectedMar
     let mut params =
         opencv::aruco::DetectorParameters::create().ctx(|| "detector parameters".into())?;
     params.set_corner_refinement_method(opencv::aruco::CORNER_REFINE_SUBPIX);
+    // OpenCV stops refining at 0.1 px steps by default, which leaves corners biased
+    // towards the marker centre by a few tenths of a pixel; the world scale comes from
+    // the marker size, so refine to convergence.
+    params.set_corner_refinement_min_accuracy(0.001);
+    params.set_corner_refinement_max_iterations(200);
     let mut corners = Vector::<Vector<Point2f>>::new();
     let mut ids = Vector::<i32>::new();
     let mut rejected = Vector::<Vector<Point2f>>::new();
