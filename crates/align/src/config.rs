@@ -117,6 +117,9 @@ pub struct AlignConfig {
     pub sift_contrast: f64,
     /// Match every frame against the reference photo for absolute constraints.
     pub match_reference: bool,
+    /// Weight of a match with the reference photo relative to a match between frames:
+    /// the reference is coarser and lit differently, so its features are less precise.
+    pub reference_weight: f64,
     /// Weight of sub-frame agreement in their overlaps, relative to a feature match.
     pub overlap_weight: f64,
     /// Gauss-Newton iterations of the global solve.
@@ -147,6 +150,7 @@ impl Default for AlignConfig {
             subframes: None,
             sift_contrast: 0.02,
             match_reference: true,
+            reference_weight: 1.0,
             overlap_weight: 1.0,
             iterations: 8,
             max_pairs_per_frame: 8,

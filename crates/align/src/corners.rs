@@ -26,9 +26,17 @@ impl Luminance {
         let data = img
             .data
             .chunks_exact(img.channels)
-            .map(|p| 0.2126 * lut[p[0] as usize] + 0.7152 * lut[p[1] as usize] + 0.0722 * lut[p[2] as usize])
+            .map(|p| {
+                0.2126 * lut[p[0] as usize]
+                    + 0.7152 * lut[p[1] as usize]
+                    + 0.0722 * lut[p[2] as usize]
+            })
             .collect();
-        Self { w: img.width, h: img.height, data }
+        Self {
+            w: img.width,
+            h: img.height,
+            data,
+        }
     }
 
     fn at(&self, p: Vec2) -> Option<f64> {
@@ -76,14 +84,20 @@ fn intersect(a: Line, b: Line) -> Option<Vec2> {
     if det.abs() < 1e-9 {
         return None;
     }
-    Some(Vec2::new((a.d * b.n.y - b.d * a.n.y) / det, (a.n.x * b.d - b.n.x * a.d) / det))
+    Some(Vec2::new(
+        (a.d * b.n.y - b.d * a.n.y) / det,
+        (a.n.x * b.d - b.n.x * a.d) / det,
+    ))
 }
 
 /// Refine the four corners of a marker with `cells` cells per side (border included).
 /// Returns the input unchanged where an edge cannot be measured.
 pub fn refine_corners(lum: &Luminance, corners: &[Vec2; 4], cells: usize) -> [Vec2; 4] {
     let centre = corners.iter().fold(Vec2::zeros(), |a, p| a + p) / 4.0;
-    let side = (0..4).map(|k| (corners[(k + 1) % 4] - corners[k]).norm()).sum::<f64>() / 4.0;
+    let side = (0..4)
+        .map(|k| (corners[(k + 1) % 4] - corners[k]).norm())
+        .sum::<f64>()
+        / 4.0;
     // Search across the edge within a third of a border cell: far enough for a
     // corner error of a pixel, close enough to stay on the ink border.
     let reach = (side / cells.max(3) as f64 / 3.0).clamp(1.5, 6.0);
@@ -109,8 +123,16 @@ pub fn refine_corners(lum: &Luminance, corners: &[Vec2; 4], cells: usize) -> [Ve
                 })
                 .collect();
             let Some(profile) = profile else { continue };
-            let lo = profile[..profile.len() / 4].iter().map(|p| p.1).sum::<f64>() / (profile.len() / 4) as f64;
-            let hi = profile[3 * profile.len() / 4..].iter().map(|p| p.1).sum::<f64>() / (profile.len() - 3 * profile.len() / 4) as f64;
+            let lo = profile[..profile.len() / 4]
+                .iter()
+                .map(|p| p.1)
+                .sum::<f64>()
+                / (profile.len() / 4) as f64;
+            let hi = profile[3 * profile.len() / 4..]
+                .iter()
+                .map(|p| p.1)
+                .sum::<f64>()
+                / (profile.len() - 3 * profile.len() / 4) as f64;
             if hi - lo < 0.05 {
                 continue; // no clear ink-to-paper edge here
             }

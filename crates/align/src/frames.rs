@@ -83,7 +83,11 @@ fn process(
     let markers = detect_markers(&marker_img, dict)?
         .into_iter()
         .map(|m| {
-            let c = crate::corners::refine_corners(&lum, &m.corners.map(|c| Vec2::new(c[0], c[1])), cells);
+            let c = crate::corners::refine_corners(
+                &lum,
+                &m.corners.map(|c| Vec2::new(c[0], c[1])),
+                cells,
+            );
             MarkerObservation {
                 id: m.id,
                 corners: c.map(|p| Vec2::new((p.x + 0.5) / ms - 0.5, (p.y + 0.5) / ms - 0.5)),

@@ -195,7 +195,8 @@ pub fn align(
             id: m.id,
             corners: corners::refine_corners(
                 &lum,
-                &m.corners.map(|c| svbrdf_core::geometry::Vec2::new(c[0], c[1])),
+                &m.corners
+                    .map(|c| svbrdf_core::geometry::Vec2::new(c[0], c[1])),
                 cells,
             ),
         })

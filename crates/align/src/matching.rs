@@ -193,22 +193,39 @@ fn coarse(
             .first()
             .map(|f| f64::from(f.width).hypot(f64::from(f.height)))
             .unwrap_or(1.0);
-        let mut extra = Vec::new();
+        // Within a segment: each frame's nearest predicted neighbours (at most
+        // `LOOP_CANDIDATES`) closer than 0.8 frame diagonals. Across a chain break: the
+        // frames just before and after it, which is where the hand's path continues.
+        const LOOP_CANDIDATES: usize = 10;
+        let mut extra = BTreeSet::new();
         for i in 0..n {
-            for j in i + 2..n {
-                if seg[i] != seg[j] {
-                    extra.push((i, j));
-                    continue;
-                }
-                let pa = Homography(to_seg[i]).apply(centre(&frames[i]));
-                let pb = Homography(to_seg[j]).apply(centre(&frames[j]));
-                if let (Some(pa), Some(pb)) = (pa, pb) {
-                    if (pa - pb).norm() < 0.8 * diag {
-                        extra.push((i, j));
+            let pa = Homography(to_seg[i]).apply(centre(&frames[i]));
+            let mut near: Vec<(f64, usize)> = (0..n)
+                .filter(|&j| j + 1 < i || j > i + 1)
+                .filter(|&j| seg[j] == seg[i])
+                .filter_map(|j| {
+                    let pb = Homography(to_seg[j]).apply(centre(&frames[j]))?;
+                    let d = (pa? - pb).norm();
+                    (d < 0.8 * diag).then_some((d, j))
+                })
+                .collect();
+            near.sort_by(|a, b| a.0.total_cmp(&b.0));
+            for &(_, j) in near.iter().take(LOOP_CANDIDATES) {
+                extra.insert((i.min(j), i.max(j)));
+            }
+        }
+        for b in 1..n {
+            if seg[b] != seg[b - 1] {
+                for i in b.saturating_sub(4)..b {
+                    for j in b..(b + 4).min(n) {
+                        if j > i + 1 {
+                            extra.insert((i, j));
+                        }
                     }
                 }
             }
         }
+        let extra: Vec<(usize, usize)> = extra.into_iter().collect();
         progress.stage("loop closure", extra.len() as u64);
         let results: Vec<_> = extra
             .par_iter()
@@ -740,7 +757,7 @@ pub fn register(
                 a: sub(i, p),
                 p: norm(p),
                 x: *x,
-                w: 1.0,
+                w: cfg.reference_weight,
             });
         }
         for (p, x) in &marker_anchors[i] {

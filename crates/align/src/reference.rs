@@ -123,10 +123,19 @@ pub fn marker_pose(k: &Intrinsics, corners: &[Vec2; 4], size: f64) -> Option<(Ma
 /// the tilt far better than any single marker's pose (whose normal is uncertain to
 /// several tenths of a degree), so this refines the averaged single-marker estimate
 /// by Gauss-Newton on the plane's two tilt angles and distance.
-fn refine_plane(k: &Intrinsics, found: &[MarkerObservation], size: f64, n0: Vec3, d0: f64) -> (Vec3, f64) {
+fn refine_plane(
+    k: &Intrinsics,
+    found: &[MarkerObservation],
+    size: f64,
+    n0: Vec3,
+    d0: f64,
+) -> (Vec3, f64) {
     let rays: Vec<[Vec3; 4]> = found
         .iter()
-        .map(|m| m.corners.map(|c| Vec3::new((c.x - k.cx) / k.fx, (c.y - k.cy) / k.fy, 1.0)))
+        .map(|m| {
+            m.corners
+                .map(|c| Vec3::new((c.x - k.cx) / k.fx, (c.y - k.cy) / k.fy, 1.0))
+        })
         .collect();
     let normal = |p: &[f64; 3]| Vec3::new(p[0], p[1], -1.0).normalize();
     let residuals = |p: &[f64; 3]| -> Vec<f64> {
@@ -135,7 +144,14 @@ fn refine_plane(k: &Intrinsics, found: &[MarkerObservation], size: f64, n0: Vec3
         let mut r = Vec::with_capacity(rays.len() * 6);
         for ray in &rays {
             let pts = ray.map(|v| v * (-d / n.dot(&v)));
-            for (a, b, len) in [(0, 1, size), (1, 2, size), (2, 3, size), (3, 0, size), (0, 2, size * std::f64::consts::SQRT_2), (1, 3, size * std::f64::consts::SQRT_2)] {
+            for (a, b, len) in [
+                (0, 1, size),
+                (1, 2, size),
+                (2, 3, size),
+                (3, 0, size),
+                (0, 2, size * std::f64::consts::SQRT_2),
+                (1, 3, size * std::f64::consts::SQRT_2),
+            ] {
                 r.push((pts[a] - pts[b]).norm() - len);
             }
         }
@@ -145,9 +161,17 @@ fn refine_plane(k: &Intrinsics, found: &[MarkerObservation], size: f64, n0: Vec3
     let mut p = [n0.x / -n0.z, n0.y / -n0.z, d0];
     for _ in 0..15 {
         let r0 = residuals(&p);
-        let mut jt = [vec![0.0; r0.len()], vec![0.0; r0.len()], vec![0.0; r0.len()]];
+        let mut jt = [
+            vec![0.0; r0.len()],
+            vec![0.0; r0.len()],
+            vec![0.0; r0.len()],
+        ];
         for (i, row) in jt.iter_mut().enumerate() {
-            let h = if i < 2 { 1e-7 } else { 1e-6 * p[2].abs().max(1.0) };
+            let h = if i < 2 {
+                1e-7
+            } else {
+                1e-6 * p[2].abs().max(1.0)
+            };
             let mut q = p;
             q[i] += h;
             for (j, v) in residuals(&q).iter().enumerate() {
@@ -162,7 +186,9 @@ fn refine_plane(k: &Intrinsics, found: &[MarkerObservation], size: f64, n0: Vec3
             }
             g[i] = jt[i].iter().zip(&r0).map(|(x, y)| x * y).sum();
         }
-        let Some(step) = a.try_inverse().map(|inv| inv * g) else { break };
+        let Some(step) = a.try_inverse().map(|inv| inv * g) else {
+            break;
+        };
         p = [p[0] - step.x, p[1] - step.y, p[2] - step.z];
         if step.norm() < 1e-12 {
             break;

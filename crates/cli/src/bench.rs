@@ -123,7 +123,9 @@ pub fn align_accuracy(
     let mut errs = Vec::new();
     let mut cam_errs = Vec::new();
     let mut light_errs = Vec::new();
+    let mut per_frame: Vec<serde_json::Value> = Vec::new();
     for f in &cap.frames {
+        let before = errs.len();
         let Some(idx) = f.frame_index else { continue };
         let Some(gt) = stream.frames.get(idx as usize) else {
             continue;
@@ -151,6 +153,15 @@ pub fn align_accuracy(
                 errs.push((ours - true_p).norm() * cap.px_per_cm);
             }
         }
+        let mut mine: Vec<f64> = errs[before..].to_vec();
+        mine.sort_by(f64::total_cmp);
+        if !mine.is_empty() {
+            per_frame.push(json!([
+                idx,
+                mine[mine.len() / 2],
+                mine[(mine.len() - 1) * 95 / 100]
+            ]));
+        }
         cam_errs
             .push((Vec3::from(f.camera_position) - Vec3::from(gt.camera.position)).norm() * 10.0);
         if let Some(l) = gt.light_position {
@@ -176,6 +187,7 @@ pub fn align_accuracy(
         "camera_error_mm_median": q(&mut cam_errs, 0.5),
         "camera_error_mm_p95": q(&mut cam_errs, 0.95),
         "flash_error_mm_median": q(&mut light_errs, 0.5),
+        "per_frame_px_median_p95": per_frame,
     }))
 }
 

@@ -51,7 +51,9 @@ impl Dictionary {
 
     /// Cells per marker side including the one-cell border (8 for 6x6 dictionaries).
     pub fn cells(&self) -> usize {
-        self.get().map(|d| d.marker_size() as usize + 2).unwrap_or(8)
+        self.get()
+            .map(|d| d.marker_size() as usize + 2)
+            .unwrap_or(8)
     }
 
     fn get(&self) -> Result<opencv::core::Ptr<opencv::aruco::Dictionary>, CvError> {

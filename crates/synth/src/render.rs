@@ -95,13 +95,20 @@ pub fn render_linear(
                     // get at least 6 x 6 jittered samples; elsewhere `ss` per axis.
                     let centre = Vec2::new(col as f64, row as f64);
                     let near = ss > 1
-                        || svbrdf_core::geometry::ray_plane(e.camera.pose.centre, e.camera.pixel_ray(centre))
-                            .is_some_and(|p| scene.near_marker(p, *fp));
+                        || svbrdf_core::geometry::ray_plane(
+                            e.camera.pose.centre,
+                            e.camera.pixel_ray(centre),
+                        )
+                        .is_some_and(|p| scene.near_marker(p, *fp));
                     let n = if near { ss.max(6) } else { 1 };
                     let mut sub = [0.0; 3];
                     for sy in 0..n {
                         for sx in 0..n {
-                            let (jx, jy) = if n > 1 { jitter(col, row, sx, sy) } else { (0.5, 0.5) };
+                            let (jx, jy) = if n > 1 {
+                                jitter(col, row, sx, sy)
+                            } else {
+                                (0.5, 0.5)
+                            };
                             let px = Vec2::new(
                                 col as f64 + (f64::from(sx) + jx) / f64::from(n) - 0.5,
                                 row as f64 + (f64::from(sy) + jy) / f64::from(n) - 0.5,
@@ -128,12 +135,16 @@ pub fn render_linear(
 /// grids quantise edge positions to 1/n pixel, which biases detected corners.
 #[inline]
 fn jitter(col: usize, row: usize, sx: u32, sy: u32) -> (f64, f64) {
-    let mut h = (col as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ (row as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
+    let mut h = (col as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15)
+        ^ (row as u64).wrapping_mul(0xC2B2_AE3D_27D4_EB4F);
     h ^= (u64::from(sx) << 32 | u64::from(sy)).wrapping_mul(0x1656_67B1_9E37_79F9);
     h ^= h >> 29;
     h = h.wrapping_mul(0xBF58_476D_1CE4_E5B9);
     h ^= h >> 32;
-    ((h & 0xFFFF_FFFF) as f64 / 4_294_967_296.0, (h >> 32) as f64 / 4_294_967_296.0)
+    (
+        (h & 0xFFFF_FFFF) as f64 / 4_294_967_296.0,
+        (h >> 32) as f64 / 4_294_967_296.0,
+    )
 }
 
 /// Sensor model: Gaussian noise with variance `shot * value + read^2`, then clipping

@@ -139,9 +139,12 @@ impl Scene {
     /// Whether a plane point lies within `r` cm of a marker's paper square.
     pub fn near_marker(&self, p: Vec2, r: f64) -> bool {
         let e = self.paper_margin + r;
-        self.markers
-            .iter()
-            .any(|m| p.x >= m.x_min - e && p.x <= m.x_min + m.size + e && p.y <= m.y_max + e && p.y >= m.y_max - m.size - e)
+        self.markers.iter().any(|m| {
+            p.x >= m.x_min - e
+                && p.x <= m.x_min + m.size + e
+                && p.y <= m.y_max + e
+                && p.y >= m.y_max - m.size - e
+        })
     }
 
     /// Whether a plane point shows material (not paper) — ground-truth coverage mask.
