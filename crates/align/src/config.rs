@@ -1,84 +1,12 @@
 //! Alignment settings: the phone description (`camera.json`) and the stage parameters
 //! of the paper's Table 1, scaled with resolution.
 
-use std::path::Path;
-
 use serde::{Deserialize, Serialize};
 use svbrdf_core::plane::Region;
 
 use crate::AlignError;
 
-/// What the paper measures once per phone (`camera.json`). Missing fields take the
-/// paper's values.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-#[serde(default)]
-pub struct CameraDescription {
-    /// Field of view across the longer image side, degrees (paper: 70).
-    pub fov_deg: f64,
-    /// Flash position in the camera frame (x right, y down, z forward), cm
-    /// (paper: [1.4, -0.3, 0]).
-    pub flash_offset_cm: [f64; 3],
-    /// Side of the printed black marker square, cm (paper: 1.6).
-    pub marker_size_cm: f64,
-    /// OpenCV marker dictionary (paper: DICT_6X6_250).
-    pub marker_dictionary: String,
-    /// Keep every n-th video frame (paper: 5).
-    pub frame_step: u32,
-}
-
-impl Default for CameraDescription {
-    fn default() -> Self {
-        Self {
-            fov_deg: 70.0,
-            flash_offset_cm: [1.4, -0.3, 0.0],
-            marker_size_cm: 1.6,
-            marker_dictionary: "DICT_6X6_250".into(),
-            frame_step: 5,
-        }
-    }
-}
-
-impl CameraDescription {
-    /// Read `camera.json`.
-    pub fn load(path: &Path) -> Result<Self, AlignError> {
-        let c: Self = svbrdf_core::fsutil::read_json(path)?;
-        c.validate()?;
-        Ok(c)
-    }
-
-    /// Check the numbers.
-    pub fn validate(&self) -> Result<(), AlignError> {
-        if !(self.fov_deg > 0.0 && self.fov_deg < 180.0) {
-            return Err(AlignError::invalid(
-                "field of view",
-                self.fov_deg,
-                "degrees, in (0, 180)",
-            ));
-        }
-        if !(self.marker_size_cm > 0.0 && self.marker_size_cm.is_finite()) {
-            return Err(AlignError::invalid(
-                "marker size",
-                self.marker_size_cm,
-                "cm, > 0",
-            ));
-        }
-        if self.frame_step == 0 {
-            return Err(AlignError::invalid("frame step", 0, "at least 1"));
-        }
-        if !self
-            .flash_offset_cm
-            .iter()
-            .all(|v| v.is_finite() && v.abs() < 50.0)
-        {
-            return Err(AlignError::invalid(
-                "flash offset",
-                format!("{:?}", self.flash_offset_cm),
-                "cm, each |v| < 50",
-            ));
-        }
-        Ok(())
-    }
-}
+pub use svbrdf_core::camera_description::CameraDescription;
 
 /// Stage parameters. Pixel distances are given at the paper's 3840-pixel long side and
 /// scaled to the actual resolution.

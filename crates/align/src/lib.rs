@@ -84,24 +84,7 @@ impl AlignError {
     }
 }
 
-/// Progress reports; the binary draws them.
-pub trait Progress: Sync {
-    /// A stage with `total` steps begins.
-    fn stage(&self, name: &str, total: u64);
-    /// `n` more steps are done.
-    fn advance(&self, n: u64);
-    /// The stage is done.
-    fn finish(&self);
-}
-
-/// No progress display.
-pub struct NoProgress;
-
-impl Progress for NoProgress {
-    fn stage(&self, _: &str, _: u64) {}
-    fn advance(&self, _: u64) {}
-    fn finish(&self) {}
-}
+pub use svbrdf_core::progress::{NoProgress, Progress};
 
 /// Why frames were not kept.
 #[derive(Debug, Clone, Default, serde::Serialize, serde::Deserialize)]

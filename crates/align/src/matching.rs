@@ -129,6 +129,23 @@ fn coarse_pair(
     ))
 }
 
+/// [`coarse_pair`] for many pairs in parallel.
+fn coarse_pairs(
+    frames: &[FrameData],
+    pairs: &[(usize, usize)],
+    cfg: &AlignConfig,
+    progress: &dyn Progress,
+) -> Result<Vec<(usize, usize, Option<SimilarityMatch>)>, AlignError> {
+    pairs
+        .par_iter()
+        .map(|&(i, j)| {
+            let r = coarse_pair(&frames[i], &frames[j], cfg);
+            progress.advance(1);
+            r.map(|r| (i, j, r))
+        })
+        .collect()
+}
+
 fn sim_to_mat(t: &[[f64; 3]; 2]) -> Mat3 {
     Mat3::new(
         t[0][0], t[0][1], t[0][2], t[1][0], t[1][1], t[1][2], 0.0, 0.0, 1.0,
@@ -152,14 +169,7 @@ fn coarse(
         (0..n.saturating_sub(1)).map(|i| (i, i + 1)).collect()
     };
     progress.stage("coarse alignment", chain.len() as u64);
-    let results: Vec<_> = chain
-        .par_iter()
-        .map(|&(i, j)| {
-            let r = coarse_pair(&frames[i], &frames[j], cfg);
-            progress.advance(1);
-            r.map(|r| (i, j, r))
-        })
-        .collect::<Result<_, _>>()?;
+    let results = coarse_pairs(frames, &chain, cfg, progress)?;
     tested += chain.len();
     let mut sims: HashMap<(usize, usize), Mat3> = HashMap::new();
     for (i, j, r) in results {
@@ -227,14 +237,7 @@ fn coarse(
         }
         let extra: Vec<(usize, usize)> = extra.into_iter().collect();
         progress.stage("loop closure", extra.len() as u64);
-        let results: Vec<_> = extra
-            .par_iter()
-            .map(|&(i, j)| {
-                let r = coarse_pair(&frames[i], &frames[j], cfg);
-                progress.advance(1);
-                r.map(|r| (i, j, r))
-            })
-            .collect::<Result<_, _>>()?;
+        let results = coarse_pairs(frames, &extra, cfg, progress)?;
         tested += extra.len();
         for (i, j, r) in results {
             if let Some((_, c)) = r {

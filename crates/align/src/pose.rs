@@ -4,8 +4,10 @@
 
 use svbrdf_core::geometry::{Intrinsics, Mat3, Pose, Vec3};
 
-/// Pose of a camera whose `pixel_from_plane` homography maps plane cm to pixels.
-pub fn pose_from_homography(k: &Intrinsics, pixel_from_plane: &Mat3) -> Option<Pose> {
+/// Decompose a homography from plane coordinates to pixels: `K^-1 H = lambda [r1 r2 t]`.
+/// Returns the camera_from_plane rotation (the nearest rotation to `[r1 r2 r1 x r2]`)
+/// and the plane origin in camera coordinates, with the plane in front of the camera.
+pub fn decompose(k: &Intrinsics, pixel_from_plane: &Mat3) -> Option<(Mat3, Vec3)> {
     let kinv = Mat3::new(
         1.0 / k.fx,
         0.0,
@@ -37,6 +39,12 @@ pub fn pose_from_homography(k: &Intrinsics, pixel_from_plane: &Mat3) -> Option<P
     if r.determinant() < 0.0 {
         r = -r;
     }
+    Some((r, t))
+}
+
+/// Pose of a camera whose `pixel_from_plane` homography maps plane cm to pixels.
+pub fn pose_from_homography(k: &Intrinsics, pixel_from_plane: &Mat3) -> Option<Pose> {
+    let (r, t) = decompose(k, pixel_from_plane)?;
     // r is camera_from_world; the centre is -R^T t.
     let centre: Vec3 = -(r.transpose() * t);
     if !(centre.z > 0.0) {

@@ -83,39 +83,7 @@ pub fn marker_pose(k: &Intrinsics, corners: &[Vec2; 4], size: f64) -> Option<(Ma
         Vec2::new(0.0, 0.0),
     ];
     let h = Homography::from_correspondences(&local, corners).ok()?;
-    let kinv = Mat3::new(
-        1.0 / k.fx,
-        0.0,
-        -k.cx / k.fx,
-        0.0,
-        1.0 / k.fy,
-        -k.cy / k.fy,
-        0.0,
-        0.0,
-        1.0,
-    );
-    let m = kinv * h.0;
-    let (c1, c2, c3) = (
-        m.column(0).into_owned(),
-        m.column(1).into_owned(),
-        m.column(2).into_owned(),
-    );
-    let mut lambda = 2.0 / (c1.norm() + c2.norm());
-    if c3.z * lambda < 0.0 {
-        lambda = -lambda; // the marker must be in front of the camera
-    }
-    let r1 = c1 * lambda;
-    let r2 = c2 * lambda;
-    let t = c3 * lambda;
-    // Nearest rotation to [r1 r2 r1xr2].
-    let approx = Mat3::from_columns(&[r1, r2, r1.cross(&r2)]);
-    let svd = approx.svd(true, true);
-    let (u, vt) = (svd.u?, svd.v_t?);
-    let mut r = u * vt;
-    if r.determinant() < 0.0 {
-        r = -r;
-    }
-    Some((r, t))
+    crate::pose::decompose(k, &h.0)
 }
 
 /// Joint plane from all markers: every marker, back-projected onto the plane `n.X + d

@@ -25,19 +25,7 @@ impl Bars {
     }
 }
 
-impl svbrdf_align::Progress for Bars {
-    fn stage(&self, name: &str, total: u64) {
-        svbrdf_synth::Progress::stage(self, name, total)
-    }
-    fn advance(&self, n: u64) {
-        svbrdf_synth::Progress::advance(self, n)
-    }
-    fn finish(&self) {
-        svbrdf_synth::Progress::finish(self)
-    }
-}
-
-impl svbrdf_synth::Progress for Bars {
+impl svbrdf_core::progress::Progress for Bars {
     fn stage(&self, name: &str, total: u64) {
         let bar = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr());
         let style = ProgressStyle::with_template(

@@ -17,6 +17,7 @@
 #![deny(missing_docs)]
 
 pub mod brdf;
+pub mod camera_description;
 pub mod capture;
 pub mod color;
 mod error;
@@ -26,5 +27,6 @@ pub mod homography;
 pub mod image;
 pub mod maps;
 pub mod plane;
+pub mod progress;
 
 pub use error::CoreError;

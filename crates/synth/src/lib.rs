@@ -32,7 +32,6 @@ use std::path::{Path, PathBuf};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 use svbrdf_core::brdf::{BrdfModel, LightView, Prepared, Ward};
 use svbrdf_core::capture::{Frame, FrameMapping, RegisteredCapture, Source, SourceKind};
 use svbrdf_core::fsutil::{write_json, StagingDir};
@@ -91,39 +90,8 @@ impl SynthError {
     }
 }
 
-/// Progress reports from long stages; the binary turns them into progress bars.
-pub trait Progress: Sync {
-    /// A stage with `total` steps begins.
-    fn stage(&self, name: &str, total: u64);
-    /// `n` more steps are done.
-    fn advance(&self, n: u64);
-    /// The current stage is done.
-    fn finish(&self);
-}
-
-/// Progress reporting that does nothing.
-pub struct NoProgress;
-
-impl Progress for NoProgress {
-    fn stage(&self, _: &str, _: u64) {}
-    fn advance(&self, _: u64) {}
-    fn finish(&self) {}
-}
-
-/// The phone description `svbrdf align` reads (`camera.json`), measured once per phone.
-#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
-pub struct CameraDescription {
-    /// Field of view across the longer image side, degrees.
-    pub fov_deg: f64,
-    /// Flash position in the camera frame (x right, y down, z forward), cm.
-    pub flash_offset_cm: [f64; 3],
-    /// Side of the black marker square, cm.
-    pub marker_size_cm: f64,
-    /// OpenCV marker dictionary name.
-    pub marker_dictionary: String,
-    /// Keep every n-th video frame.
-    pub frame_step: u32,
-}
+pub use svbrdf_core::camera_description::CameraDescription;
+pub use svbrdf_core::progress::{NoProgress, Progress};
 
 /// What `synthesize` wrote.
 #[derive(Debug, Clone)]
