@@ -139,6 +139,13 @@ impl AlignConfig {
                 ));
             }
         }
+        if !(self.fine_inlier_px > 0.0 && self.coarse_inlier_px > 0.0) {
+            return Err(AlignError::invalid(
+                "inlier distance",
+                self.fine_inlier_px.min(self.coarse_inlier_px),
+                "pixels, > 0",
+            ));
+        }
         if !(0.0..0.5).contains(&self.highlight_radius) {
             return Err(AlignError::invalid(
                 "highlight radius",

@@ -115,6 +115,10 @@ struct AlignArgs {
     /// Minimum fine inliers per frame pair (default 60, the paper's).
     #[arg(long)]
     fine_min_inliers: Option<usize>,
+    /// Fine homography inlier distance in pixels at a 3840-pixel long side, scaled with
+    /// resolution (default 60, the paper's).
+    #[arg(long)]
+    fine_inlier_px: Option<f64>,
     /// Sub-frame grid as COLSxROWS (default: the paper's 5x11 at 2160x3840, scaled).
     #[arg(long)]
     subframes: Option<String>,
@@ -148,6 +152,9 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
     }
     if let Some(v) = a.fine_min_inliers {
         c.fine_min_inliers = v;
+    }
+    if let Some(v) = a.fine_inlier_px {
+        c.fine_inlier_px = v;
     }
     if let Some(s) = &a.subframes {
         let parts: Vec<&str> = s.split(['x', 'X']).collect();
@@ -279,6 +286,7 @@ fn run_demo(a: &DemoArgs) -> Result<()> {
         fine_long_side: None,
         fine_features: None,
         fine_min_inliers: None,
+        fine_inlier_px: None,
         subframes: None,
         all_pairs: false,
         overwrite: true,
