@@ -8,7 +8,7 @@ use rayon::prelude::*;
 use svbrdf_core::geometry::Vec2;
 use svbrdf_core::image::ImageU8;
 use svbrdf_cv::aruco::{detect_markers, Dictionary};
-use svbrdf_cv::features::{resize, sift, Features};
+use svbrdf_cv::features::{downscaled, sift, Features};
 use svbrdf_cv::video::VideoReader;
 
 use crate::blur::blur_metric;
@@ -58,11 +58,7 @@ fn process(
     let long = img.width.max(img.height) as f64;
     let cs = (f64::from(cfg.coarse_long_side) / long).min(1.0);
     let fs = (f64::from(cfg.fine_long_side) / long).min(1.0);
-    let coarse_img = if cs < 1.0 {
-        resize(img, cs)?
-    } else {
-        img.clone()
-    };
+    let coarse_img = downscaled(img, cs)?;
     let grey: Vec<f32> = coarse_img
         .data
         .chunks_exact(3)
@@ -73,11 +69,7 @@ fn process(
     let blur = blur_metric(&grey, coarse_img.width, coarse_img.height);
     // Markers at up to 1920 px: large enough for sub-pixel corners, cheap to search.
     let ms = (1920.0 / long).min(1.0);
-    let marker_img = if ms < 1.0 {
-        resize(img, ms)?
-    } else {
-        img.clone()
-    };
+    let marker_img = downscaled(img, ms)?;
     let lum = crate::corners::Luminance::new(&marker_img);
     let cells = dict.cells();
     let markers = detect_markers(&marker_img, dict)?
@@ -111,11 +103,7 @@ fn process(
         )?,
         cs,
     );
-    let fine_img = if fs < 1.0 {
-        resize(img, fs)?
-    } else {
-        img.clone()
-    };
+    let fine_img = downscaled(img, fs)?;
     let fine = unscale(
         sift(
             &fine_img,
@@ -126,11 +114,7 @@ fn process(
         fs,
     );
     let ts = (480.0 / long).min(1.0);
-    let thumb = if ts < 1.0 {
-        resize(img, ts)?
-    } else {
-        img.clone()
-    };
+    let thumb = downscaled(img, ts)?;
     Ok(FrameData {
         index,
         time_s: index as f64 / fps.max(1e-9),

@@ -39,16 +39,6 @@ pub use matching::Connectivity;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum AlignError {
-    /// A setting outside its range.
-    #[error("invalid {what} {value} (expected {expected})")]
-    Invalid {
-        /// Which setting.
-        what: String,
-        /// The value.
-        value: String,
-        /// The accepted range.
-        expected: String,
-    },
     /// Markers missing or unusable.
     #[error("{0}")]
     Markers(String),
@@ -76,11 +66,8 @@ impl AlignError {
         value: impl ToString,
         expected: impl Into<String>,
     ) -> Self {
-        Self::Invalid {
-            what: what.into(),
-            value: value.to_string(),
-            expected: expected.into(),
-        }
+        // The core already has the one-line "invalid X (expected Y)" error.
+        Self::Core(CoreError::invalid(what, value, expected))
     }
 }
 

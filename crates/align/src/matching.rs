@@ -7,7 +7,7 @@ use svbrdf_core::geometry::{Intrinsics, Mat3, Pose, Vec2};
 use svbrdf_core::homography::Homography;
 use svbrdf_core::image::ImageU8;
 use svbrdf_cv::features::{
-    estimate_homography, estimate_similarity, match_one_to_one, resize, sift, Features, Robust,
+    downscaled, estimate_homography, estimate_similarity, match_one_to_one, sift, Features, Robust,
 };
 
 use crate::blur::blurry_frames;
@@ -37,11 +37,7 @@ pub fn reference_features(
 ) -> Result<ReferenceFeatures, AlignError> {
     let long = img.width.max(img.height) as f64;
     let s = (f64::from(cfg.fine_long_side) / long).min(1.0);
-    let small = if s < 1.0 {
-        resize(img, s)?
-    } else {
-        img.clone()
-    };
+    let small = downscaled(img, s)?;
     let mut f = sift(&small, cfg.fine_features * 2, cfg.sift_contrast, None)?;
     let mut plane = Vec::with_capacity(f.len());
     for p in &mut f.points {

@@ -63,6 +63,15 @@ pub fn resize(img: &ImageU8, scale: f64) -> Result<ImageU8, CvError> {
     crate::mat_to_rgb(&dst)
 }
 
+/// `img` resized by `scale` when `scale < 1`, otherwise a copy of it.
+pub fn downscaled(img: &ImageU8, scale: f64) -> Result<ImageU8, CvError> {
+    if scale < 1.0 {
+        resize(img, scale)
+    } else {
+        Ok(img.clone())
+    }
+}
+
 /// Detect up to `max_features` SIFT features, ignoring a disc (`[cx, cy, radius]`, pixels)
 /// such as the flash highlight, whose features move with the camera.
 /// `contrast` is SIFT's contrast threshold (OpenCV default 0.04; lower finds more

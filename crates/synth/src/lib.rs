@@ -57,16 +57,6 @@ use truth::*;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum SynthError {
-    /// A setting outside its range.
-    #[error("invalid {what} {value} (expected {expected})")]
-    Invalid {
-        /// Which setting.
-        what: String,
-        /// The value given.
-        value: String,
-        /// Accepted range, with units.
-        expected: String,
-    },
     /// From the core (files, geometry).
     #[error(transparent)]
     Core(#[from] CoreError),
@@ -82,11 +72,8 @@ impl SynthError {
         value: impl ToString,
         expected: impl Into<String>,
     ) -> Self {
-        Self::Invalid {
-            what: what.into(),
-            value: value.to_string(),
-            expected: expected.into(),
-        }
+        // The core already has the one-line "invalid X (expected Y)" error.
+        Self::Core(CoreError::invalid(what, value, expected))
     }
 }
 

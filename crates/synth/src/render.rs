@@ -94,12 +94,13 @@ pub fn render_linear(
                     // world scale (via their detected corners), so pixels near them
                     // get at least 6 x 6 jittered samples; elsewhere `ss` per axis.
                     let centre = Vec2::new(col as f64, row as f64);
-                    let near = ss > 1
-                        || svbrdf_core::geometry::ray_plane(
-                            e.camera.pose.centre,
-                            e.camera.pixel_ray(centre),
-                        )
-                        .is_some_and(|p| scene.near_marker(p, *fp));
+                    // The frame's undistortion table, not Newton steps: this runs per pixel.
+                    let near = ss > 1 || {
+                        let q = table.undistort(e.camera.intrinsics.pixel_to_normalized(centre));
+                        let dir = e.camera.pose.camera_dir_to_world(Vec3::new(q.x, q.y, 1.0));
+                        svbrdf_core::geometry::ray_plane(e.camera.pose.centre, dir)
+                            .is_some_and(|p| scene.near_marker(p, *fp))
+                    };
                     let n = if near { ss.max(6) } else { 1 };
                     let mut sub = [0.0; 3];
                     for sy in 0..n {
