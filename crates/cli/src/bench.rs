@@ -23,6 +23,14 @@ pub struct BenchArgs {
     /// `--all-pairs`; reports how many of its coarse connections the default search found.
     #[arg(long, requires = "align_capture")]
     all_pairs_capture: Option<std::path::PathBuf>,
+    /// Fit this registered capture (with and without per-pixel refinement) and compare
+    /// the maps with the ground truth of --truth. The light intensity is withheld from
+    /// the fit (albedos are compared after one global scale factor).
+    #[arg(long, requires = "truth")]
+    fit_capture: Option<std::path::PathBuf>,
+    /// Model for --fit-capture: ward or ggx.
+    #[arg(long, default_value = "ward")]
+    fit_model: String,
     /// Skip the BRDF throughput measurements.
     #[arg(long)]
     no_brdf: bool,
@@ -191,7 +199,103 @@ pub fn align_accuracy(
     }))
 }
 
+/// Load the simulator's ground-truth maps for [`svbrdf_fit::evaluate`].
+pub fn load_truth(synth_dir: &std::path::Path) -> Result<svbrdf_fit::evaluate::Truth> {
+    use svbrdf_core::maps::{read_image_linear, Encoding};
+    let gt_dir = synth_dir.join("ground_truth");
+    let truth: svbrdf_synth::truth::GroundTruth =
+        svbrdf_core::fsutil::read_json(&gt_dir.join("truth.json"))?;
+    let read = |f: &str| read_image_linear(&gt_dir.join(f), Encoding::Linear);
+    let mut holdout = Vec::new();
+    for h in &truth.holdout {
+        holdout.push((
+            read(&h.exr)?,
+            Vec3::from(h.light_position),
+            Vec3::from(h.camera_position),
+        ));
+    }
+    Ok(svbrdf_fit::evaluate::Truth {
+        grid: svbrdf_core::plane::PlaneGrid::new(truth.region, truth.maps.px_per_cm)?,
+        diffuse: read(&truth.maps.diffuse)?,
+        normal: read(&truth.maps.normal)?,
+        mask: read(&truth.maps.mask)?,
+        holdout,
+    })
+}
+
+/// Fit a capture with the intensity withheld, with and without refinement, and compare
+/// with the simulator's truth: one JSON object per setting.
+pub fn fit_accuracy(
+    capture_dir: &std::path::Path,
+    synth_dir: &std::path::Path,
+    model: &str,
+) -> Result<Vec<serde_json::Value>> {
+    use svbrdf_fit::FrameSource;
+    svbrdf_cv::set_single_threaded()?;
+    let truth = load_truth(synth_dir)?;
+    let mut capture = svbrdf_core::capture::RegisteredCapture::load(capture_dir)?;
+    capture.light_intensity = None;
+    let mut cfg = crate::fit_cmd::fit_config(&crate::fit_cmd::FitArgs {
+        capture: capture_dir.into(),
+        out: std::path::PathBuf::new(),
+        model: model.into(),
+        px_per_cm: None,
+        light_intensity: None,
+        no_refine: true,
+        seed: None,
+        overwrite: false,
+    })?;
+    let grid = svbrdf_fit::output_grid(&capture, &cfg)?;
+    let t = Instant::now();
+    let mut b = svbrdf_fit::ObservationBuilder::new(&capture, grid, &cfg)?;
+    crate::fit_cmd::CvFrames.decode(&capture, capture_dir, &mut |k, img| b.add_frame(k, &img))?;
+    let obs = b.finish();
+    let t_obs = t.elapsed().as_secs_f64();
+    let mut out = Vec::new();
+    for refine in [false, true] {
+        cfg.refine = refine;
+        let t = Instant::now();
+        let (maps, summary) =
+            svbrdf_fit::fit(&obs, &capture, &cfg, &svbrdf_core::progress::NoProgress)?;
+        let t_fit = t.elapsed().as_secs_f64();
+        let acc = svbrdf_fit::evaluate::evaluate(
+            &grid,
+            &maps.params,
+            cfg.model.model(),
+            summary.light_intensity,
+            &truth,
+        );
+        out.push(json!({
+            "bench": "fit_accuracy",
+            "capture": capture_dir.display().to_string(),
+            "model": summary.model,
+            "refine": refine,
+            "grid": [grid.width, grid.height],
+            "frames": capture.frames.len(),
+            "observations": summary.observations,
+            "initial_clusters": summary.initial_clusters,
+            "final_clusters": summary.final_clusters,
+            "accuracy": acc,
+            "rerender_rmse": summary.rmse_final,
+            "observation_seconds": t_obs,
+            "fit_seconds": t_fit,
+            "timings": summary.timings,
+            "peak_memory_kb": peak_memory_kb(),
+            "machine": machine(),
+        }));
+    }
+    Ok(out)
+}
+
 pub fn run(a: &BenchArgs) -> Result<()> {
+    if let (Some(c), Some(t)) = (&a.fit_capture, &a.truth) {
+        for v in fit_accuracy(c, t, &a.fit_model)? {
+            println!("{v}");
+        }
+        if a.no_brdf && a.align_capture.is_none() {
+            return Ok(());
+        }
+    }
     if let (Some(c), Some(t)) = (&a.align_capture, &a.truth) {
         let mut v = align_accuracy(c, t)?;
         if let Ok(text) = std::fs::read_to_string(c.join("align.json")) {

@@ -4,6 +4,7 @@
 //! and prints errors once.
 
 mod bench;
+mod fit_cmd;
 mod progress;
 
 use std::path::PathBuf;
@@ -34,6 +35,9 @@ enum Command {
     /// Align a flash video to the plane defined by the markers in a reference photo and
     /// write a registered capture (paper section 3.1).
     Align(AlignArgs),
+    /// Fit svBRDF maps (diffuse, specular, roughness, normal) to a registered capture
+    /// (paper section 3.2) and check them by re-rendering every frame.
+    Fit(fit_cmd::FitArgs),
     /// Measure speed and accuracy and print one JSON object per line.
     Bench(bench::BenchArgs),
 }
@@ -341,6 +345,7 @@ fn main() -> ExitCode {
             .map(|s| print_summary(&s)),
         Command::Demo(a) => run_demo(&a),
         Command::Align(a) => run_align(&a),
+        Command::Fit(a) => fit_cmd::run_fit(&a).map(|_| ()),
         Command::Bench(a) => bench::run(&a),
     };
     match result {

@@ -9,6 +9,7 @@
 #![deny(missing_docs)]
 
 pub mod aruco;
+pub mod capture;
 pub mod features;
 pub mod video;
 

@@ -1,0 +1,128 @@
+//! `svbrdf fit`: argument parsing and the OpenCV frame source.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::Result;
+use clap::Args;
+use svbrdf_core::brdf::ModelKind;
+use svbrdf_core::capture::RegisteredCapture;
+use svbrdf_core::image::ImageF32;
+use svbrdf_fit::{FitConfig, FitError, FrameSource};
+
+#[derive(Args, Clone)]
+pub struct FitArgs {
+    /// Registered capture: a folder holding capture.json (from `svbrdf align`, the
+    /// simulator's `registered/`, or any tool writing the documented format).
+    #[arg(long)]
+    pub capture: PathBuf,
+    /// Output folder for the maps (must not exist unless --overwrite).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Reflectance model: `ward` (the paper's) or `ggx` (with Fresnel).
+    #[arg(long, default_value = "ward")]
+    pub model: String,
+    /// Output resolution, pixels per cm (default: the capture's).
+    #[arg(long)]
+    pub px_per_cm: Option<f64>,
+    /// Flash intensity in linear value * cm^2, one number or R,G,B (default: the
+    /// capture's, else albedos are normalised: see docs/CONVENTIONS.md).
+    #[arg(long, value_delimiter = ',')]
+    pub light_intensity: Option<Vec<f64>>,
+    /// Skip the per-pixel refinement (maps constant within each cluster, as the paper).
+    #[arg(long)]
+    pub no_refine: bool,
+    /// Seed of the clustering's random choices.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Replace the output folder if it exists.
+    #[arg(long)]
+    pub overwrite: bool,
+}
+
+pub fn fit_config(a: &FitArgs) -> Result<FitConfig> {
+    let mut c = FitConfig {
+        model: match a.model.as_str() {
+            "ward" => ModelKind::Ward,
+            "ggx" => ModelKind::Ggx,
+            m => anyhow::bail!("invalid model {m:?} (expected ward or ggx)"),
+        },
+        px_per_cm: a.px_per_cm,
+        refine: !a.no_refine,
+        ..FitConfig::default()
+    };
+    if let Some(i) = &a.light_intensity {
+        c.light_intensity = Some(match i.as_slice() {
+            [v] => [*v; 3],
+            [r, g, b] => [*r, *g, *b],
+            _ => {
+                anyhow::bail!("invalid light intensity {i:?} (expected one number or three: R,G,B)")
+            }
+        });
+    }
+    if let Some(s) = a.seed {
+        c.seed = s;
+    }
+    c.validate()?;
+    Ok(c)
+}
+
+/// Frames through OpenCV's decoder.
+pub struct CvFrames;
+
+impl FrameSource for CvFrames {
+    fn decode(
+        &self,
+        capture: &RegisteredCapture,
+        dir: &Path,
+        sink: &mut dyn FnMut(usize, ImageF32) -> Result<(), FitError>,
+    ) -> Result<(), FitError> {
+        svbrdf_cv::capture::decode_frames::<anyhow::Error>(capture, dir, &mut |k, img| {
+            sink(k, img).map_err(anyhow::Error::from)
+        })
+        .map_err(|e| match e.downcast::<FitError>() {
+            Ok(f) => f,
+            Err(e) => FitError::Source(format!("{e:#}")),
+        })
+    }
+}
+
+pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
+    let cfg = fit_config(a)?;
+    svbrdf_cv::set_single_threaded()?;
+    let progress = crate::progress::Bars::new();
+    let run = svbrdf_fit::run(&a.capture, &a.out, a.overwrite, &cfg, &CvFrames, &progress)?;
+    let s = &run.manifest.summary;
+    println!("wrote {}", run.out.display());
+    println!(
+        "observations: {} ({} clipped dropped); {} of {} pixels observed at least {} times",
+        s.observations, s.dropped_saturated, s.covered_pixels, s.pixels, cfg.min_observations
+    );
+    println!(
+        "clusters: {} initial (k-means elbow), {} final, deepest split level {}; {} stopped at the iteration cap",
+        s.initial_clusters,
+        s.final_clusters,
+        s.max_depth,
+        s.unconverged_clusters.len()
+    );
+    println!(
+        "light intensity {:.1} ({:?}); model {}",
+        s.light_intensity[1], s.light_intensity_source, s.model
+    );
+    let worst = s.frames.iter().map(|f| f.relative).fold(0.0f64, f64::max);
+    println!(
+        "re-rendering error (linear RMS): clusters only {:.4}, final {:.4}; worst frame {:.1}% of its mean",
+        s.rmse_clusters,
+        s.rmse_final,
+        100.0 * worst
+    );
+    let t: Vec<String> = s
+        .timings
+        .iter()
+        .map(|(n, v)| format!("{n} {v:.1} s"))
+        .collect();
+    println!("timings: {}", t.join(", "));
+    if let Some(kb) = crate::bench::peak_memory_kb() {
+        println!("peak memory: {:.0} MB", kb as f64 / 1024.0);
+    }
+    Ok(run)
+}

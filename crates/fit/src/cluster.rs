@@ -1,0 +1,219 @@
+//! Initial clusters (paper section 3.2.1): k-means with k-means++ seeding on the
+//! per-pixel average colour in CIE L*a*b*, with k chosen by the elbow of the summed
+//! squared error over a range of k.
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
+use svbrdf_core::color::linear_rgb_to_lab;
+
+/// A point in L*a*b*.
+pub type Lab = [f64; 3];
+
+fn dist2(a: &Lab, b: &Lab) -> f64 {
+    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
+}
+
+/// Index of the nearest centre and the squared distance to it.
+pub fn nearest(p: &Lab, centres: &[Lab]) -> (usize, f64) {
+    let mut best = (0, f64::INFINITY);
+    for (i, c) in centres.iter().enumerate() {
+        let d = dist2(p, c);
+        if d < best.1 {
+            best = (i, d);
+        }
+    }
+    best
+}
+
+/// Lloyd's k-means with k-means++ seeding; returns the centres and the summed squared
+/// error. Deterministic for a seed.
+pub fn kmeans(points: &[Lab], k: usize, seed: u64, iterations: usize) -> (Vec<Lab>, f64) {
+    if points.is_empty() || k == 0 {
+        return (Vec::new(), 0.0);
+    }
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    let mut centres = vec![points[rng.random_range(0..points.len())]];
+    let mut d2: Vec<f64> = points.iter().map(|p| dist2(p, &centres[0])).collect();
+    while centres.len() < k {
+        let total: f64 = d2.iter().sum();
+        let next = if total > 0.0 {
+            let mut t = rng.random::<f64>() * total;
+            let mut pick = points.len() - 1;
+            for (i, d) in d2.iter().enumerate() {
+                t -= d;
+                if t <= 0.0 {
+                    pick = i;
+                    break;
+                }
+            }
+            pick
+        } else {
+            rng.random_range(0..points.len())
+        };
+        let c = points[next];
+        centres.push(c);
+        for (d, p) in d2.iter_mut().zip(points) {
+            *d = d.min(dist2(p, &c));
+        }
+    }
+    let mut sse = f64::INFINITY;
+    for _ in 0..iterations {
+        let mut sums = vec![[0.0; 4]; k];
+        let mut new_sse = 0.0;
+        for p in points {
+            let (i, d) = nearest(p, &centres);
+            new_sse += d;
+            for j in 0..3 {
+                sums[i][j] += p[j];
+            }
+            sums[i][3] += 1.0;
+        }
+        for (c, s) in centres.iter_mut().zip(&sums) {
+            if s[3] > 0.0 {
+                *c = [s[0] / s[3], s[1] / s[3], s[2] / s[3]];
+            }
+        }
+        let done = new_sse >= sse * (1.0 - 1e-6);
+        sse = new_sse;
+        if done {
+            break;
+        }
+    }
+    let sse = points.iter().map(|p| nearest(p, &centres).1).sum();
+    (centres, sse)
+}
+
+/// The elbow of a decreasing error curve: the k whose error lies farthest below the
+/// straight line from the first to the last point (the paper's "linear bisection
+/// point"). `curve[i]` is the error for `k_min + i`.
+pub fn elbow(k_min: usize, curve: &[f64]) -> usize {
+    let n = curve.len();
+    if n < 3 {
+        return k_min;
+    }
+    let (a, b) = (curve[0], curve[n - 1]);
+    let mut best = (0, f64::NEG_INFINITY);
+    for (i, &e) in curve.iter().enumerate() {
+        let line = a + (b - a) * i as f64 / (n - 1) as f64;
+        if line - e > best.1 {
+            best = (i, line - e);
+        }
+    }
+    k_min + best.0
+}
+
+/// Result of the initial clustering.
+#[derive(Debug, Clone)]
+pub struct InitialClusters {
+    /// The chosen k.
+    pub k: usize,
+    /// Summed squared error per k, from `k_min`.
+    pub sse: Vec<f64>,
+    /// Centres in L*a*b*.
+    pub centres: Vec<Lab>,
+    /// Cluster per input colour.
+    pub labels: Vec<u32>,
+}
+
+/// Cluster linear colours: L*a*b* of the colours normalised by the brightest one (the
+/// paper clusters "normalised albedo colour"), k-means on an even sample of at most
+/// `sample` colours for every k in `k_min..=k_max`, elbow, then every colour to its
+/// nearest centre.
+pub fn initial_clusters(
+    colors: &[[f64; 3]],
+    k_min: usize,
+    k_max: usize,
+    sample: usize,
+    seed: u64,
+) -> InitialClusters {
+    let peak = colors
+        .iter()
+        .flat_map(|c| c.iter().copied())
+        .fold(1e-9, f64::max);
+    let lab: Vec<Lab> = colors
+        .par_iter()
+        .map(|c| linear_rgb_to_lab(c.map(|v| v / peak)))
+        .collect();
+    // A random sample, not every n-th pixel: a regular stride aliases with periodic
+    // textures (tiles, weaves) and can miss a whole colour.
+    let sub: Vec<Lab> = if lab.len() <= sample {
+        lab.clone()
+    } else {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed ^ 0x00c0_ffee);
+        let mut idx = rand::seq::index::sample(&mut rng, lab.len(), sample).into_vec();
+        idx.sort_unstable();
+        idx.into_iter().map(|i| lab[i]).collect()
+    };
+    let k_max = k_max.min(sub.len()).max(1);
+    let k_min = k_min.min(k_max);
+    let runs: Vec<(Vec<Lab>, f64)> = (k_min..=k_max)
+        .into_par_iter()
+        .map(|k| {
+            // Lloyd's iterations find local minima; the best of a few seedings makes the
+            // error curve (and so the elbow) stable.
+            (0..4u64)
+                .map(|r| kmeans(&sub, k, seed.wrapping_add(1000 * r + k as u64), 50))
+                .min_by(|a, b| a.1.total_cmp(&b.1))
+                .unwrap_or_default()
+        })
+        .collect();
+    let sse: Vec<f64> = runs.iter().map(|r| r.1).collect();
+    let k = elbow(k_min, &sse);
+    let centres = runs[k - k_min].0.clone();
+    let labels = lab
+        .par_iter()
+        .map(|p| nearest(p, &centres).0 as u32)
+        .collect();
+    InitialClusters {
+        k,
+        sse,
+        centres,
+        labels,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn elbow_finds_the_knee() {
+        // Error drops steeply until k = 4, then flattens.
+        let curve = [100.0, 60.0, 20.0, 15.0, 13.0, 12.0, 11.0, 10.5];
+        assert_eq!(elbow(2, &curve), 4);
+        assert_eq!(elbow(2, &[5.0, 4.0]), 2);
+    }
+
+    #[test]
+    fn four_colours_give_four_clusters_deterministically() {
+        let base = [
+            [0.6, 0.1, 0.1],
+            [0.1, 0.5, 0.1],
+            [0.1, 0.1, 0.6],
+            [0.5, 0.5, 0.45],
+        ];
+        let mut rng = ChaCha8Rng::seed_from_u64(9);
+        let colors: Vec<[f64; 3]> = (0..4000)
+            .map(|i| base[i % 4].map(|v: f64| v * (1.0 + 0.03 * (rng.random::<f64>() - 0.5))))
+            .collect();
+        let a = initial_clusters(&colors, 2, 10, 2000, 7);
+        assert_eq!(a.k, 4, "sse {:?}", a.sse);
+        // Same colour, same label; different colour, different label.
+        for i in 0..8 {
+            assert_eq!(
+                a.labels[i],
+                a.labels[i + 4],
+                "{:?} {:?}",
+                a.centres,
+                &a.labels[..12]
+            );
+        }
+        let mut l: Vec<u32> = a.labels[..4].to_vec();
+        l.sort_unstable();
+        l.dedup();
+        assert_eq!(l.len(), 4);
+        let b = initial_clusters(&colors, 2, 10, 2000, 7);
+        assert_eq!(a.labels, b.labels);
+    }
+}

@@ -1,0 +1,213 @@
+//! Settings of the appearance stage.
+
+use serde::{Deserialize, Serialize};
+use svbrdf_core::brdf::ModelKind;
+
+use crate::FitError;
+
+/// Settings of `svbrdf fit`. Every field has the paper's value or a measured default.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(default)]
+pub struct FitConfig {
+    /// Reflectance model fitted per cluster.
+    pub model: ModelKind,
+    /// Output resolution, pixels per cm; `None` uses the capture's suggestion.
+    pub px_per_cm: Option<f64>,
+    /// Light intensity `I` of eq. (9) per channel (linear pixel value * cm^2); `None`
+    /// uses the capture's value or, when it has none, the normalisation described in
+    /// `docs/CONVENTIONS.md` (the 99th percentile of the first diffuse estimate's
+    /// luminance becomes [`FitConfig::normalised_albedo`]).
+    pub light_intensity: Option<[f64; 3]>,
+    /// Target of the intensity normalisation when the intensity is unknown.
+    pub normalised_albedo: f64,
+    /// Observations whose linear value exceeds this in any channel are dropped as
+    /// clipped (the 8-bit video saturates in flash highlights).
+    pub saturation: f64,
+    /// Observations within this many frame pixels of the image border are dropped.
+    pub border_px: f64,
+    /// Pixels with fewer observations are not fitted on their own: they take their
+    /// neighbour's cluster and are marked in the coverage map.
+    pub min_observations: usize,
+    /// Range of k for the initial k-means (paper: 2..=20).
+    pub k_min: usize,
+    /// Upper end of the k range.
+    pub k_max: usize,
+    /// Pixels drawn for choosing k and for the k-means iterations (all pixels are then
+    /// assigned to the nearest centre).
+    pub kmeans_sample: usize,
+    /// Seed of every random choice (k-means++ seeding, samples): same seed, same maps.
+    pub seed: u64,
+    /// Smallest cluster (pixels): a cluster is split only if both parts keep at least
+    /// this many (paper: 50).
+    pub min_cluster_px: usize,
+    /// A split is kept only if the children's summed squared error is below
+    /// `1 - min_split_gain` times the parent's; otherwise the parent is final. Stops
+    /// splitting clusters that are already explained to the noise level.
+    pub min_split_gain: f64,
+    /// Deepest split level.
+    pub max_depth: usize,
+    /// At most this many pixels of a cluster feed its binned observations (spread
+    /// evenly); per-pixel errors always use every observation.
+    pub max_fit_pixels: usize,
+    /// Bin width of the four angles of the redundant-observation binning, degrees
+    /// (paper: 5).
+    pub bin_deg: f64,
+    /// Bin width of the light distance, cm (paper: 1).
+    pub bin_cm: f64,
+    /// Levenberg-Marquardt iterations per cluster fit.
+    pub max_iterations: usize,
+    /// Smallest roughness alpha.
+    pub alpha_min: f64,
+    /// Largest roughness alpha.
+    pub alpha_max: f64,
+    /// Largest normal-offset angle about either axis, degrees (paper: 45).
+    pub max_normal_deg: f64,
+    /// Per-pixel refinement of diffuse albedo and normal after clustering.
+    pub refine: bool,
+    /// Strength of the refinement's pull towards the cluster solution, in observations:
+    /// the prior weighs as much as this many average observations of each parameter.
+    pub refine_prior: f64,
+    /// Gauss-Newton iterations of the per-pixel refinement.
+    pub refine_iterations: usize,
+    /// Frames shown in the re-rendering strip.
+    pub strip_frames: usize,
+}
+
+impl Default for FitConfig {
+    fn default() -> Self {
+        Self {
+            model: ModelKind::Ward,
+            px_per_cm: None,
+            light_intensity: None,
+            normalised_albedo: 0.8,
+            saturation: 0.98,
+            border_px: 2.0,
+            min_observations: 3,
+            k_min: 2,
+            k_max: 20,
+            kmeans_sample: 20_000,
+            seed: 1,
+            min_cluster_px: 50,
+            min_split_gain: 0.02,
+            max_depth: 24,
+            max_fit_pixels: 4000,
+            bin_deg: 5.0,
+            bin_cm: 1.0,
+            max_iterations: 60,
+            alpha_min: 0.02,
+            alpha_max: 1.0,
+            max_normal_deg: 45.0,
+            refine: true,
+            refine_prior: 2.0,
+            refine_iterations: 6,
+            strip_frames: 4,
+        }
+    }
+}
+
+impl FitConfig {
+    /// Check every field; the error names the field, the value and the accepted range.
+    pub fn validate(&self) -> Result<(), FitError> {
+        let bad = |what: &str, v: &dyn std::fmt::Display, exp: &str| {
+            Err(FitError::invalid(what, v.to_string(), exp))
+        };
+        if let Some(s) = self.px_per_cm {
+            if !(s > 0.0 && s <= 1000.0) {
+                return bad("resolution", &s, "pixels per cm in (0, 1000]");
+            }
+        }
+        if let Some(i) = self.light_intensity {
+            if !i.iter().all(|v| *v > 0.0 && v.is_finite()) {
+                return bad(
+                    "light intensity",
+                    &format!("{i:?}"),
+                    "three positive numbers (linear value * cm^2)",
+                );
+            }
+        }
+        if !(self.normalised_albedo > 0.0 && self.normalised_albedo <= 1.0) {
+            return bad("normalised albedo", &self.normalised_albedo, "(0, 1]");
+        }
+        if !(self.saturation > 0.0 && self.saturation <= 1.0) {
+            return bad("saturation", &self.saturation, "a linear value in (0, 1]");
+        }
+        if !(self.border_px >= 0.0 && self.border_px < 1000.0) {
+            return bad("border", &self.border_px, "pixels in [0, 1000)");
+        }
+        if self.min_observations < 1 {
+            return bad("minimum observations", &self.min_observations, ">= 1");
+        }
+        if self.k_min < 1 || self.k_max < self.k_min || self.k_max > 64 {
+            return bad(
+                "k range",
+                &format!("{}..={}", self.k_min, self.k_max),
+                "1 <= k_min <= k_max <= 64",
+            );
+        }
+        if self.kmeans_sample < self.k_max {
+            return bad(
+                "k-means sample",
+                &self.kmeans_sample,
+                "at least k_max pixels",
+            );
+        }
+        if self.min_cluster_px < 1 {
+            return bad("minimum cluster size", &self.min_cluster_px, ">= 1 pixel");
+        }
+        if !(0.0..1.0).contains(&self.min_split_gain) {
+            return bad("minimum split gain", &self.min_split_gain, "[0, 1)");
+        }
+        if self.max_fit_pixels < self.min_cluster_px {
+            return bad(
+                "fit pixels per cluster",
+                &self.max_fit_pixels,
+                "at least the minimum cluster size",
+            );
+        }
+        if !(self.bin_deg > 0.0 && self.bin_deg <= 45.0) {
+            return bad("angle bin", &self.bin_deg, "degrees in (0, 45]");
+        }
+        if !(self.bin_cm > 0.0 && self.bin_cm <= 100.0) {
+            return bad("distance bin", &self.bin_cm, "cm in (0, 100]");
+        }
+        if self.max_iterations == 0 {
+            return bad("iterations", &self.max_iterations, ">= 1");
+        }
+        if !(self.alpha_min > 0.0 && self.alpha_min < self.alpha_max && self.alpha_max <= 2.0) {
+            return bad(
+                "roughness range",
+                &format!("{}..{}", self.alpha_min, self.alpha_max),
+                "0 < alpha_min < alpha_max <= 2",
+            );
+        }
+        if !(self.max_normal_deg >= 0.0 && self.max_normal_deg < 80.0) {
+            return bad("normal bound", &self.max_normal_deg, "degrees in [0, 80)");
+        }
+        if !(self.refine_prior >= 0.0 && self.refine_prior.is_finite()) {
+            return bad("refinement prior", &self.refine_prior, ">= 0");
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn default_is_valid_and_bad_values_are_named() {
+        FitConfig::default().validate().unwrap();
+        let c = FitConfig {
+            k_min: 5,
+            k_max: 3,
+            ..FitConfig::default()
+        };
+        let e = c.validate().unwrap_err().to_string();
+        assert!(e.contains("k range 5..=3"), "{e}");
+        let c = FitConfig {
+            saturation: 1.5,
+            ..FitConfig::default()
+        };
+        assert!(c.validate().unwrap_err().to_string().contains("1.5"));
+    }
+}

@@ -1,0 +1,143 @@
+//! Accuracy of fitted maps against known maps (the simulator's ground truth): diffuse
+//! albedo error after one global scale factor, normal angle error and relighting error
+//! under held-out lights. Truth maps may have another grid: they are sampled
+//! bilinearly at each fitted pixel's plane position.
+
+use serde::{Deserialize, Serialize};
+use svbrdf_core::brdf::{BrdfModel, BrdfParams};
+use svbrdf_core::geometry::{Vec2, Vec3};
+use svbrdf_core::image::ImageF32;
+use svbrdf_core::plane::PlaneGrid;
+
+use crate::render::relight;
+
+/// Known maps.
+pub struct Truth {
+    /// Their grid.
+    pub grid: PlaneGrid,
+    /// Diffuse albedo, linear RGB.
+    pub diffuse: ImageF32,
+    /// Unit normals.
+    pub normal: ImageF32,
+    /// 1 where material is visible.
+    pub mask: ImageF32,
+    /// Held-out images with their light and camera positions (cm).
+    pub holdout: Vec<(ImageF32, Vec3, Vec3)>,
+}
+
+/// Accuracy figures.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct Accuracy {
+    /// Pixels compared (inside both grids and on material).
+    pub pixels: usize,
+    /// Global scale applied to the fitted albedos before comparing (least squares).
+    pub albedo_scale: f64,
+    /// Diffuse albedo RMSE after scaling, over pixels and channels.
+    pub diffuse_rmse: f64,
+    /// Mean normal angle error, degrees.
+    pub normal_mean_deg: f64,
+    /// Median normal angle error, degrees.
+    pub normal_median_deg: f64,
+    /// Relighting error per held-out light: RMSE of linear radiance over mean radiance.
+    /// Rendered with the intensity the fit used, which reproduces absolute radiance
+    /// whether or not the intensity was known (the fit determines `I * rho`).
+    pub relight_relative_rmse: Vec<f64>,
+    /// Mean of the above.
+    pub relight_relative_rmse_mean: f64,
+}
+
+fn sample(img: &ImageF32, grid: &PlaneGrid, q: Vec2) -> [f64; 3] {
+    let p = grid.to_pixel(q);
+    let mut o = [0f32; 3];
+    img.sample_bilinear(p.x, p.y, &mut o);
+    o.map(f64::from)
+}
+
+/// Compare fitted maps with the truth.
+pub fn evaluate(
+    grid: &PlaneGrid,
+    params: &[BrdfParams],
+    model: &dyn BrdfModel,
+    intensity: [f64; 3],
+    truth: &Truth,
+) -> Accuracy {
+    let r = truth.grid.region;
+    // Half a truth pixel inside the truth region, so bilinear samples are interior.
+    let m = 0.5 / truth.grid.px_per_cm;
+    let mut idx = Vec::new();
+    for row in 0..grid.height {
+        for col in 0..grid.width {
+            let q = grid.pixel_centre(col, row);
+            if q.x < r.x_min + m || q.x > r.x_max - m || q.y < r.y_min + m || q.y > r.y_max - m {
+                continue;
+            }
+            if sample(&truth.mask, &truth.grid, q)[0] < 0.999 {
+                continue;
+            }
+            idx.push((row * grid.width + col, q));
+        }
+    }
+    let (mut ft, mut ff) = (0.0, 0.0);
+    for &(i, q) in &idx {
+        let t = sample(&truth.diffuse, &truth.grid, q);
+        for c in 0..3 {
+            ft += params[i].rho_d[c] * t[c];
+            ff += params[i].rho_d[c] * params[i].rho_d[c];
+        }
+    }
+    let scale = if ff > 0.0 { ft / ff } else { 1.0 };
+    let mut se = 0.0;
+    let mut angles = Vec::with_capacity(idx.len());
+    for &(i, q) in &idx {
+        let t = sample(&truth.diffuse, &truth.grid, q);
+        for c in 0..3 {
+            se += (scale * params[i].rho_d[c] - t[c]).powi(2);
+        }
+        let tn = sample(&truth.normal, &truth.grid, q);
+        let tn = Vec3::new(tn[0], tn[1], tn[2])
+            .try_normalize(1e-9)
+            .unwrap_or_else(Vec3::z);
+        let cos = params[i].normal().dot(&tn).clamp(-1.0, 1.0);
+        angles.push(cos.acos().to_degrees());
+    }
+    let n = idx.len().max(1) as f64;
+    let normal_mean_deg = angles.iter().sum::<f64>() / n;
+    let normal_median_deg = if angles.is_empty() {
+        0.0
+    } else {
+        let k = angles.len() / 2;
+        *angles.select_nth_unstable_by(k, f64::total_cmp).1
+    };
+    let relight_relative_rmse: Vec<f64> = truth
+        .holdout
+        .iter()
+        .map(|(img, light, camera)| {
+            let ours = relight(grid, params, model, intensity, *light, *camera);
+            let (mut se, mut sum) = (0.0, 0.0);
+            for &(i, q) in &idx {
+                let t = sample(img, &truth.grid, q);
+                for c in 0..3 {
+                    se += (f64::from(ours.data[3 * i + c]) - t[c]).powi(2);
+                    sum += t[c];
+                }
+            }
+            let mean = sum / (3.0 * n);
+            if mean > 0.0 {
+                (se / (3.0 * n)).sqrt() / mean
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let relight_relative_rmse_mean =
+        relight_relative_rmse.iter().sum::<f64>() / relight_relative_rmse.len().max(1) as f64;
+    Accuracy {
+        pixels: idx.len(),
+        albedo_scale: scale,
+        diffuse_rmse: (se / (3.0 * n)).sqrt(),
+        normal_mean_deg,
+        normal_median_deg,
+        relight_relative_rmse,
+        relight_relative_rmse_mean,
+    }
+}

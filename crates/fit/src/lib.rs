@@ -1,0 +1,504 @@
+//! # svbrdf-fit
+//!
+//! The appearance stage (paper section 3.2): from a registered capture's observations
+//! to spatially varying BRDF maps. Pure Rust; frames arrive already decoded (the
+//! binary decodes them through `svbrdf-cv`), so this crate builds and tests without
+//! OpenCV.
+//!
+//! Steps: [`observations`] (per-pixel linear colours, streamed frame by frame),
+//! [`cluster`] (k-means++ on average colour in L*a*b*, elbow choice of k), [`tree`]
+//! (recursive constrained fitting with the redundant-observation binning),
+//! per-pixel refinement of diffuse albedo and normal, [`render`] (re-rendering check,
+//! relighting) and [`output`] (maps as EXR and PNG with a JSON manifest).
+#![deny(missing_docs)]
+// Per-channel and per-parameter loops index several parallel arrays at once; iterator
+// chains over three of them read worse than the index.
+#![allow(clippy::needless_range_loop)]
+
+pub mod cluster;
+pub mod config;
+pub mod evaluate;
+pub mod observations;
+pub mod output;
+pub mod render;
+pub mod solver;
+pub mod tree;
+
+use std::collections::VecDeque;
+use std::time::Instant;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use svbrdf_core::brdf::{BrdfParams, N_PARAMS};
+use svbrdf_core::capture::RegisteredCapture;
+use svbrdf_core::plane::PlaneGrid;
+use svbrdf_core::progress::Progress;
+use svbrdf_core::CoreError;
+
+pub use config::FitConfig;
+pub use observations::{ObservationBuilder, Observations};
+
+use crate::solver::{Freedom, Prior, Problem, Sample};
+use crate::tree::Context;
+
+/// Errors of the appearance stage.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum FitError {
+    /// From the core (files, formats, invalid values).
+    #[error(transparent)]
+    Core(#[from] CoreError),
+    /// Nothing to fit.
+    #[error("{0}")]
+    NoData(String),
+    /// The frame source (video decoder, image reader) failed.
+    #[error("{0}")]
+    Source(String),
+}
+
+/// Supplies the decoded frames of a capture (the binary implements it with OpenCV's
+/// video decoder; tests can feed images directly).
+pub trait FrameSource {
+    /// Call `sink(k, linear_rgb)` for every frame `k` of `capture.frames`; `dir` holds
+    /// `capture.json`.
+    fn decode(
+        &self,
+        capture: &RegisteredCapture,
+        dir: &std::path::Path,
+        sink: &mut dyn FnMut(usize, svbrdf_core::image::ImageF32) -> Result<(), FitError>,
+    ) -> Result<(), FitError>;
+}
+
+/// What [`run`] wrote.
+#[derive(Debug, Clone)]
+pub struct FitRun {
+    /// The output folder.
+    pub out: std::path::PathBuf,
+    /// Its manifest.
+    pub manifest: output::FitManifest,
+}
+
+/// The whole stage: read the registered capture in `capture_dir`, gather observations
+/// frame by frame, fit, and write the output folder `out` (built under a temporary
+/// name and renamed when complete).
+pub fn run(
+    capture_dir: &std::path::Path,
+    out: &std::path::Path,
+    overwrite: bool,
+    cfg: &FitConfig,
+    source: &dyn FrameSource,
+    progress: &dyn Progress,
+) -> Result<FitRun, FitError> {
+    cfg.validate()?;
+    let capture = RegisteredCapture::load(capture_dir)?;
+    let dir = if capture_dir.is_dir() {
+        capture_dir.to_path_buf()
+    } else {
+        capture_dir
+            .parent()
+            .map(std::path::Path::to_path_buf)
+            .unwrap_or_default()
+    };
+    if capture.frames.is_empty() {
+        return Err(FitError::NoData(format!(
+            "{}: the capture has no frames",
+            capture_dir.display()
+        )));
+    }
+    let grid = output_grid(&capture, cfg)?;
+    let staging = svbrdf_core::fsutil::StagingDir::new(out, overwrite)?;
+    let t = Instant::now();
+    progress.stage("observations", capture.frames.len() as u64);
+    let mut builder = ObservationBuilder::new(&capture, grid, cfg)?;
+    source.decode(&capture, &dir, &mut |k, img| {
+        builder.add_frame(k, &img)?;
+        progress.advance(1);
+        Ok(())
+    })?;
+    let obs = builder.finish();
+    progress.finish();
+    let t_obs = t.elapsed().as_secs_f64();
+    let (maps, mut summary) = fit(&obs, &capture, cfg, progress)?;
+    summary.timings.insert(0, ("observations".into(), t_obs));
+    let nf = obs.frames.len();
+    let n = cfg.strip_frames.clamp(1, nf);
+    let chosen: Vec<usize> = (0..n)
+        .map(|i| {
+            if n == 1 {
+                nf / 2
+            } else {
+                i * (nf - 1) / (n - 1)
+            }
+        })
+        .collect();
+    let strip = render::strip(
+        &obs,
+        &maps.params,
+        cfg.model.model(),
+        summary.light_intensity,
+        &chosen,
+        512,
+    );
+    let manifest = output::write_outputs(staging.path(), &maps, &summary, &strip)?;
+    let out = staging.commit()?;
+    Ok(FitRun { out, manifest })
+}
+
+impl FitError {
+    /// An out-of-range value (see [`CoreError::invalid`]).
+    pub fn invalid(
+        what: impl Into<String>,
+        value: impl ToString,
+        expected: impl Into<String>,
+    ) -> Self {
+        Self::Core(CoreError::invalid(what, value, expected))
+    }
+}
+
+/// The output grid of a capture under a configuration.
+pub fn output_grid(capture: &RegisteredCapture, cfg: &FitConfig) -> Result<PlaneGrid, FitError> {
+    Ok(PlaneGrid::new(
+        capture.region,
+        cfg.px_per_cm.unwrap_or(capture.px_per_cm),
+    )?)
+}
+
+/// Fitted maps on the output grid.
+#[derive(Debug, Clone)]
+pub struct FittedMaps {
+    /// The grid.
+    pub grid: PlaneGrid,
+    /// BRDF per pixel (row-major).
+    pub params: Vec<BrdfParams>,
+    /// Final cluster per pixel.
+    pub cluster: Vec<u32>,
+    /// Observations per pixel (0: filled from the nearest observed pixel's cluster).
+    pub coverage: Vec<u32>,
+    /// Mean observed linear colour per pixel.
+    pub average: Vec<[f64; 3]>,
+    /// RMS re-rendering error per pixel (linear radiance).
+    pub residual: Vec<f32>,
+}
+
+/// How the light intensity was obtained.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum IntensitySource {
+    /// Given on the command line or in the configuration.
+    Config,
+    /// From the registered capture (the simulator knows it).
+    Capture,
+    /// Normalised so that the bright end of the material has albedo
+    /// [`FitConfig::normalised_albedo`]: albedos are relative.
+    Normalised,
+}
+
+/// Figures of one fit.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FitSummary {
+    /// Model name.
+    pub model: String,
+    /// Light intensity used per channel.
+    pub light_intensity: [f64; 3],
+    /// Where it came from.
+    pub light_intensity_source: IntensitySource,
+    /// Observations used.
+    pub observations: usize,
+    /// Observations dropped as clipped.
+    pub dropped_saturated: u64,
+    /// Pixels with at least `min_observations`.
+    pub covered_pixels: usize,
+    /// All pixels.
+    pub pixels: usize,
+    /// Chosen k of the initial clustering.
+    pub initial_clusters: usize,
+    /// Summed squared k-means error per k from `k_min`.
+    pub kmeans_sse: Vec<f64>,
+    /// Final clusters.
+    pub final_clusters: usize,
+    /// Deepest split level reached.
+    pub max_depth: usize,
+    /// Final clusters whose solver stopped at the iteration cap (reported, not fatal).
+    pub unconverged_clusters: Vec<u32>,
+    /// Whether the per-pixel refinement ran.
+    pub refined: bool,
+    /// RMS re-rendering error over all observations before refinement (linear).
+    pub rmse_clusters: f64,
+    /// The same after refinement (equal to `rmse_clusters` without refinement).
+    pub rmse_final: f64,
+    /// Re-rendering error per input frame.
+    pub frames: Vec<render::FrameError>,
+    /// Seconds per step.
+    pub timings: Vec<(String, f64)>,
+}
+
+/// The light intensity: from the configuration, the capture, or normalised from the
+/// data (99th percentile of the per-pixel median of `pi L r^2 / cos(theta_i)` over
+/// channels, mapped to `normalised_albedo`).
+pub fn light_intensity(
+    obs: &Observations,
+    capture: &RegisteredCapture,
+    cfg: &FitConfig,
+) -> Result<([f64; 3], IntensitySource), FitError> {
+    if let Some(i) = cfg.light_intensity {
+        return Ok((i, IntensitySource::Config));
+    }
+    if let Some(i) = capture.light_intensity {
+        return Ok((i, IntensitySource::Capture));
+    }
+    let step = (obs.pixels() / 20_000).max(1);
+    let mut medians: Vec<f64> = (0..obs.pixels())
+        .step_by(step)
+        .filter(|&p| obs.count(p) > 0)
+        .map(|p| {
+            let mut a: Vec<f64> = obs
+                .range(p)
+                .map(|o| {
+                    let lv = obs.light_view(p, o);
+                    let c = obs.color(o);
+                    std::f64::consts::PI * lv.light_dist2 / lv.light.z.max(0.05)
+                        * (c[0] + c[1] + c[2])
+                        / 3.0
+                })
+                .collect();
+            let m = a.len() / 2;
+            *a.select_nth_unstable_by(m, f64::total_cmp).1
+        })
+        .collect();
+    if medians.is_empty() {
+        return Err(FitError::NoData(
+            "no pixel of the region was observed".into(),
+        ));
+    }
+    let k = ((medians.len() - 1) as f64 * 0.99).round() as usize;
+    let p99 = *medians.select_nth_unstable_by(k, f64::total_cmp).1;
+    if p99 <= 0.0 || !p99.is_finite() {
+        return Err(FitError::NoData(
+            "every observation is black: cannot normalise the light intensity".into(),
+        ));
+    }
+    Ok((
+        [p99 / cfg.normalised_albedo; 3],
+        IntensitySource::Normalised,
+    ))
+}
+
+/// Give every unobserved pixel the cluster of its nearest observed pixel (4-connected
+/// breadth-first fill), so that no output pixel is left without a BRDF.
+fn fill_unobserved(grid: &PlaneGrid, cluster: &mut [u32], known: &[bool]) {
+    let (w, h) = (grid.width, grid.height);
+    let mut seen = known.to_vec();
+    let mut queue: VecDeque<usize> = (0..w * h).filter(|&p| known[p]).collect();
+    while let Some(p) = queue.pop_front() {
+        let (x, y) = (p % w, p / w);
+        let mut push = |q: usize| {
+            if !seen[q] {
+                seen[q] = true;
+                cluster[q] = cluster[p];
+                queue.push_back(q);
+            }
+        };
+        if x > 0 {
+            push(p - 1);
+        }
+        if x + 1 < w {
+            push(p + 1);
+        }
+        if y > 0 {
+            push(p - w);
+        }
+        if y + 1 < h {
+            push(p + w);
+        }
+    }
+}
+
+/// Per-pixel refinement of diffuse albedo and normal (our addition to the paper: its
+/// maps are constant within a cluster). Each pixel is fitted to its own raw
+/// observations, pulled towards its cluster's solution by a prior as strong as
+/// `refine_prior` average observations of each parameter.
+fn refine(ctx: &Context, params: &mut [BrdfParams], covered: &[bool]) {
+    let obs = ctx.obs;
+    let bounds = ctx.bounds();
+    params
+        .par_iter_mut()
+        .with_min_len(256)
+        .enumerate()
+        .for_each(|(px, p)| {
+            if !covered[px] {
+                return;
+            }
+            let samples: Vec<Sample> = obs
+                .range(px)
+                .map(|o| Sample {
+                    lv: obs.light_view(px, o),
+                    rgb: obs.color(o),
+                    weight: 1.0,
+                })
+                .collect();
+            let prob = Problem {
+                model: ctx.model,
+                samples: &samples,
+                intensity: ctx.intensity,
+                bounds,
+            };
+            let x0 = p.to_array();
+            let info = prob.information(&x0, &Freedom::DIFFUSE_AND_NORMAL);
+            let n = samples.len() as f64;
+            let prior = Prior {
+                centre: x0,
+                weight: std::array::from_fn::<f64, N_PARAMS, _>(|k| {
+                    ctx.cfg.refine_prior * info[k].max(1e-12) / n
+                }),
+            };
+            let sol = prob.solve(
+                p,
+                &Freedom::DIFFUSE_AND_NORMAL,
+                Some(&prior),
+                ctx.cfg.refine_iterations,
+            );
+            if sol.params.is_physical() {
+                *p = sol.params;
+            }
+        });
+}
+
+/// Fit maps to observations. `progress` sees the clustering, fitting and refinement.
+pub fn fit(
+    obs: &Observations,
+    capture: &RegisteredCapture,
+    cfg: &FitConfig,
+    progress: &dyn Progress,
+) -> Result<(FittedMaps, FitSummary), FitError> {
+    cfg.validate()?;
+    let mut timings = Vec::new();
+    let t = Instant::now();
+    let (intensity, source) = light_intensity(obs, capture, cfg)?;
+    let model = cfg.model.model();
+    let ctx = Context {
+        obs,
+        model,
+        intensity,
+        cfg,
+    };
+    let npx = obs.pixels();
+    let average = obs.mean_colors();
+    let covered: Vec<bool> = (0..npx)
+        .map(|p| obs.count(p) >= cfg.min_observations)
+        .collect();
+    let covered_px: Vec<u32> = (0..npx as u32).filter(|&p| covered[p as usize]).collect();
+    if covered_px.len() < cfg.min_cluster_px {
+        return Err(FitError::NoData(format!(
+            "only {} of {} output pixels have at least {} observations (need {}): \
+             the frames do not cover the region",
+            covered_px.len(),
+            npx,
+            cfg.min_observations,
+            cfg.min_cluster_px
+        )));
+    }
+
+    progress.stage("initial clusters", 1);
+    let colors: Vec<[f64; 3]> = covered_px.iter().map(|&p| average[p as usize]).collect();
+    let init =
+        cluster::initial_clusters(&colors, cfg.k_min, cfg.k_max, cfg.kmeans_sample, cfg.seed);
+    let mut members: Vec<Vec<u32>> = vec![Vec::new(); init.k];
+    for (&p, &l) in covered_px.iter().zip(&init.labels) {
+        members[l as usize].push(p);
+    }
+    progress.finish();
+    timings.push(("initial clusters".to_string(), t.elapsed().as_secs_f64()));
+
+    let t = Instant::now();
+    progress.stage("cluster fits", init.k as u64);
+    let leaves: Vec<tree::Leaf> = members
+        .into_par_iter()
+        .filter(|m| !m.is_empty())
+        .flat_map_iter(|m| {
+            let l = tree::fit_cluster(&ctx, m);
+            progress.advance(1);
+            l
+        })
+        .collect();
+    progress.finish();
+    timings.push(("cluster fits".to_string(), t.elapsed().as_secs_f64()));
+
+    let mut cluster = vec![u32::MAX; npx];
+    let mut params = vec![BrdfParams::default(); npx];
+    let mut unconverged = Vec::new();
+    for (i, leaf) in leaves.iter().enumerate() {
+        for &p in &leaf.pixels {
+            cluster[p as usize] = i as u32;
+        }
+        if !leaf.converged {
+            unconverged.push(i as u32);
+        }
+    }
+    fill_unobserved(&obs.grid, &mut cluster, &covered);
+    for (p, c) in params.iter_mut().zip(&cluster) {
+        *p = leaves[*c as usize].params;
+    }
+    let sse_clusters: f64 = leaves.iter().map(|l| l.sse).sum();
+    let n_obs_fit: usize = leaves.iter().map(|l| l.observations).sum();
+    let rmse_clusters = (sse_clusters / (3 * n_obs_fit.max(1)) as f64).sqrt();
+
+    let t = Instant::now();
+    if cfg.refine {
+        progress.stage("per-pixel refinement", 1);
+        refine(&ctx, &mut params, &covered);
+        progress.finish();
+        timings.push((
+            "per-pixel refinement".to_string(),
+            t.elapsed().as_secs_f64(),
+        ));
+    }
+
+    let t = Instant::now();
+    progress.stage("re-rendering check", 1);
+    let residual = render::pixel_residuals(obs, &params, model, intensity);
+    let frames = render::frame_errors(obs, &params, model, intensity);
+    progress.finish();
+    timings.push(("re-rendering check".to_string(), t.elapsed().as_secs_f64()));
+    let (sse, n): (f64, usize) = frames
+        .iter()
+        .map(|f| {
+            (
+                f.rmse * f.rmse * (3 * f.observations) as f64,
+                f.observations,
+            )
+        })
+        .fold((0.0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    let rmse_final = (sse / (3 * n.max(1)) as f64).sqrt();
+
+    let coverage = (0..npx).map(|p| obs.count(p) as u32).collect();
+    let summary = FitSummary {
+        model: model.name().to_string(),
+        light_intensity: intensity,
+        light_intensity_source: source,
+        observations: obs.len(),
+        dropped_saturated: obs.dropped_saturated,
+        covered_pixels: covered_px.len(),
+        pixels: npx,
+        initial_clusters: init.k,
+        kmeans_sse: init.sse,
+        final_clusters: leaves.len(),
+        max_depth: leaves.iter().map(|l| l.depth).max().unwrap_or(0),
+        unconverged_clusters: unconverged,
+        refined: cfg.refine,
+        rmse_clusters,
+        rmse_final,
+        frames,
+        timings,
+    };
+    Ok((
+        FittedMaps {
+            grid: obs.grid,
+            params,
+            cluster,
+            coverage,
+            average,
+            residual,
+        },
+        summary,
+    ))
+}

@@ -1,0 +1,351 @@
+//! Observations: for every output pixel, the linear colour it showed in every frame that
+//! saw it. Built frame by frame (frames are never all in memory), then stored pixel by
+//! pixel (compressed sparse rows) because every later step works per pixel or per
+//! cluster of pixels.
+//!
+//! An observation is 12 bytes: frame number (u16), linear RGB (u16 each, value *
+//! 65535) and the key of its redundant-observation bin (u32). Its geometry (light and
+//! view directions, light distance) is not stored: it follows from the pixel centre
+//! and the frame's camera and light positions in a few multiplications.
+
+use rayon::prelude::*;
+use svbrdf_core::brdf::LightView;
+use svbrdf_core::capture::{PreparedMapping, RegisteredCapture};
+use svbrdf_core::geometry::{Vec2, Vec3};
+use svbrdf_core::image::ImageF32;
+use svbrdf_core::plane::PlaneGrid;
+
+use crate::config::FitConfig;
+use crate::FitError;
+
+/// Linear value 1.0 is stored as this.
+pub const RGB_SCALE: f64 = 65535.0;
+
+/// Where a frame's camera and light were.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct FrameGeometry {
+    /// Frame id in the capture.
+    pub id: u32,
+    /// Camera centre, cm.
+    pub camera: Vec3,
+    /// Light position, cm.
+    pub light: Vec3,
+}
+
+/// All observations of a capture on an output grid.
+#[derive(Debug, Clone)]
+pub struct Observations {
+    /// The output grid.
+    pub grid: PlaneGrid,
+    /// Frames, indexed by the observation's frame number.
+    pub frames: Vec<FrameGeometry>,
+    /// Observations of pixel `p` are `start[p]..start[p + 1]`.
+    pub start: Vec<usize>,
+    /// Frame number per observation.
+    pub frame: Vec<u16>,
+    /// Linear RGB * [`RGB_SCALE`] per observation.
+    pub rgb: Vec<[u16; 3]>,
+    /// Redundant-observation bin per observation (see [`bin_key`]).
+    pub key: Vec<u32>,
+    /// Observations dropped because a channel was clipped.
+    pub dropped_saturated: u64,
+}
+
+impl Observations {
+    /// Number of output pixels.
+    pub fn pixels(&self) -> usize {
+        self.start.len() - 1
+    }
+
+    /// Number of observations.
+    pub fn len(&self) -> usize {
+        self.frame.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.frame.is_empty()
+    }
+
+    /// Observation range of a pixel.
+    pub fn range(&self, px: usize) -> std::ops::Range<usize> {
+        self.start[px]..self.start[px + 1]
+    }
+
+    /// Observation count of a pixel.
+    pub fn count(&self, px: usize) -> usize {
+        self.start[px + 1] - self.start[px]
+    }
+
+    /// Linear colour of observation `o`.
+    #[inline]
+    pub fn color(&self, o: usize) -> [f64; 3] {
+        self.rgb[o].map(|v| f64::from(v) / RGB_SCALE)
+    }
+
+    /// Plane point (cm, z = 0) of a pixel's centre.
+    #[inline]
+    pub fn surface(&self, px: usize) -> Vec3 {
+        let q = self
+            .grid
+            .pixel_centre(px % self.grid.width, px / self.grid.width);
+        Vec3::new(q.x, q.y, 0.0)
+    }
+
+    /// Geometry of observation `o` of pixel `px`.
+    #[inline]
+    pub fn light_view(&self, px: usize, o: usize) -> LightView {
+        let f = &self.frames[usize::from(self.frame[o])];
+        LightView::from_points(self.surface(px), f.light, f.camera)
+    }
+
+    /// Per-pixel mean linear colour (zero where unobserved).
+    pub fn mean_colors(&self) -> Vec<[f64; 3]> {
+        (0..self.pixels())
+            .into_par_iter()
+            .map(|p| {
+                let r = self.range(p);
+                let n = r.len().max(1) as f64;
+                let mut s = [0.0; 3];
+                for o in r {
+                    let c = self.color(o);
+                    for k in 0..3 {
+                        s[k] += c[k];
+                    }
+                }
+                s.map(|v| v / n)
+            })
+            .collect()
+    }
+}
+
+/// The bin of the paper's section 3.2.2: 5-degree steps of the light and view polar and
+/// azimuth angles (about the flat normal) and 1 cm steps of the light distance, packed
+/// as `theta_i (6 bits) | phi_i (8) | theta_r (6) | phi_r (8) | r (4)`; distance and
+/// angle indices saturate at the top of their range.
+pub fn bin_key(lv: &LightView, bin_deg: f64, bin_cm: f64) -> u32 {
+    let step = bin_deg.to_radians();
+    let polar = |d: Vec3| {
+        (d.z.clamp(-1.0, 1.0).acos() / step)
+            .floor()
+            .clamp(0.0, 63.0) as u32
+    };
+    let azimuth = |d: Vec3| {
+        let a = d.y.atan2(d.x) + std::f64::consts::PI;
+        (a / step).floor().clamp(0.0, 255.0) as u32
+    };
+    let r = (lv.light_dist2.sqrt() / bin_cm).floor().clamp(0.0, 15.0) as u32;
+    (polar(lv.light) << 26)
+        | (azimuth(lv.light) << 18)
+        | (polar(lv.view) << 12)
+        | (azimuth(lv.view) << 4)
+        | r
+}
+
+/// One frame's observations before transposition: (pixel, rgb, key).
+type FrameObs = Vec<(u32, [u16; 3], u32)>;
+
+/// Collects observations one decoded frame at a time.
+pub struct ObservationBuilder {
+    grid: PlaneGrid,
+    frames: Vec<FrameGeometry>,
+    mappings: Vec<PreparedMapping>,
+    sizes: Vec<(u32, u32)>,
+    per_frame: Vec<FrameObs>,
+    saturated: Vec<u64>,
+    saturation: f32,
+    border: f64,
+    bin_deg: f64,
+    bin_cm: f64,
+}
+
+impl ObservationBuilder {
+    /// Prepare for the frames of `capture` on `grid`.
+    pub fn new(
+        capture: &RegisteredCapture,
+        grid: PlaneGrid,
+        cfg: &FitConfig,
+    ) -> Result<Self, FitError> {
+        if capture.frames.len() > usize::from(u16::MAX) {
+            return Err(FitError::invalid(
+                "frame count",
+                capture.frames.len(),
+                "at most 65535 frames",
+            ));
+        }
+        let mut mappings = Vec::with_capacity(capture.frames.len());
+        for f in &capture.frames {
+            mappings.push(PreparedMapping::new(f)?);
+        }
+        Ok(Self {
+            grid,
+            frames: capture
+                .frames
+                .iter()
+                .map(|f| FrameGeometry {
+                    id: f.id,
+                    camera: Vec3::from(f.camera_position),
+                    light: Vec3::from(f.light_position),
+                })
+                .collect(),
+            sizes: capture.frames.iter().map(|f| (f.width, f.height)).collect(),
+            mappings,
+            per_frame: vec![Vec::new(); capture.frames.len()],
+            saturated: vec![0; capture.frames.len()],
+            saturation: cfg.saturation as f32,
+            border: cfg.border_px,
+            bin_deg: cfg.bin_deg,
+            bin_cm: cfg.bin_cm,
+        })
+    }
+
+    /// Plane-grid rows and columns that can see frame `k` (from its border's footprint).
+    fn footprint(&self, k: usize) -> Option<(usize, usize, usize, usize)> {
+        let (w, h) = self.sizes[k];
+        let (w, h) = (f64::from(w) - 0.5, f64::from(h) - 0.5);
+        let mut lo = Vec2::new(f64::INFINITY, f64::INFINITY);
+        let mut hi = -lo;
+        let n = 32;
+        for i in 0..=n {
+            let t = i as f64 / n as f64;
+            for p in [
+                Vec2::new(-0.5 + t * (w + 0.5), -0.5),
+                Vec2::new(-0.5 + t * (w + 0.5), h),
+                Vec2::new(-0.5, -0.5 + t * (h + 0.5)),
+                Vec2::new(w, -0.5 + t * (h + 0.5)),
+            ] {
+                if let Some(q) = self.mappings[k].pixel_to_plane(p) {
+                    let g = self.grid.to_pixel(q);
+                    lo = lo.inf(&g);
+                    hi = hi.sup(&g);
+                }
+            }
+        }
+        if !(lo.x.is_finite() && hi.x.is_finite()) {
+            return None;
+        }
+        let c0 = (lo.x.floor() - 2.0).max(0.0) as usize;
+        let r0 = (lo.y.floor() - 2.0).max(0.0) as usize;
+        let c1 = ((hi.x.ceil() + 3.0).max(0.0) as usize).min(self.grid.width);
+        let r1 = ((hi.y.ceil() + 3.0).max(0.0) as usize).min(self.grid.height);
+        (c0 < c1 && r0 < r1).then_some((c0, c1, r0, r1))
+    }
+
+    /// Add frame `k` of the capture (index into `capture.frames`), decoded to linear RGB.
+    pub fn add_frame(&mut self, k: usize, img: &ImageF32) -> Result<(), FitError> {
+        let (w, h) = self.sizes[k];
+        if img.width != w as usize || img.height != h as usize || img.channels != 3 {
+            return Err(FitError::invalid(
+                format!("frame {} image size", self.frames[k].id),
+                format!("{}x{}x{}", img.width, img.height, img.channels),
+                format!("{w}x{h} RGB as the capture says"),
+            ));
+        }
+        let Some((c0, c1, r0, r1)) = self.footprint(k) else {
+            return Ok(());
+        };
+        let mapping = &self.mappings[k];
+        let geom = self.frames[k];
+        let grid = self.grid;
+        let (xmax, ymax) = (
+            f64::from(w) - 1.0 - self.border,
+            f64::from(h) - 1.0 - self.border,
+        );
+        let (border, sat, bd, bc) = (self.border, self.saturation, self.bin_deg, self.bin_cm);
+        let rows: Vec<(FrameObs, u64)> = (r0..r1)
+            .into_par_iter()
+            .map(|r| {
+                let mut out = Vec::new();
+                let mut clipped = 0;
+                let mut c = [0f32; 3];
+                for col in c0..c1 {
+                    let q = grid.pixel_centre(col, r);
+                    let Some(p) = mapping.plane_to_pixel(q) else {
+                        continue;
+                    };
+                    if !(p.x >= border && p.y >= border && p.x <= xmax && p.y <= ymax) {
+                        continue;
+                    }
+                    img.sample_bilinear(p.x, p.y, &mut c);
+                    if !c.iter().all(|v| v.is_finite()) {
+                        continue;
+                    }
+                    if c.iter().any(|v| *v > sat) {
+                        clipped += 1;
+                        continue;
+                    }
+                    let rgb = c.map(|v| (f64::from(v.max(0.0)) * RGB_SCALE).round() as u16);
+                    let lv =
+                        LightView::from_points(Vec3::new(q.x, q.y, 0.0), geom.light, geom.camera);
+                    out.push(((r * grid.width + col) as u32, rgb, bin_key(&lv, bd, bc)));
+                }
+                (out, clipped)
+            })
+            .collect();
+        let mut all = Vec::with_capacity(rows.iter().map(|r| r.0.len()).sum());
+        for (v, n) in rows {
+            all.extend(v);
+            self.saturated[k] += n;
+        }
+        self.per_frame[k] = all;
+        Ok(())
+    }
+
+    /// Transpose into per-pixel storage.
+    pub fn finish(self) -> Observations {
+        let npx = self.grid.len();
+        let mut start = vec![0usize; npx + 1];
+        for f in &self.per_frame {
+            for (p, _, _) in f {
+                start[*p as usize + 1] += 1;
+            }
+        }
+        for i in 0..npx {
+            start[i + 1] += start[i];
+        }
+        let total = start[npx];
+        let mut frame = vec![0u16; total];
+        let mut rgb = vec![[0u16; 3]; total];
+        let mut key = vec![0u32; total];
+        let mut fill = start.clone();
+        for (k, f) in self.per_frame.into_iter().enumerate() {
+            for (p, c, b) in f {
+                let o = fill[p as usize];
+                fill[p as usize] += 1;
+                frame[o] = k as u16;
+                rgb[o] = c;
+                key[o] = b;
+            }
+        }
+        Observations {
+            grid: self.grid,
+            frames: self.frames,
+            start,
+            frame,
+            rgb,
+            key,
+            dropped_saturated: self.saturated.iter().sum(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn bin_key_separates_angles_and_distance() {
+        let lv = |l: Vec3, v: Vec3, r: f64| LightView {
+            light: l.normalize(),
+            view: v.normalize(),
+            light_dist2: r * r,
+        };
+        let a = bin_key(&lv(Vec3::new(0.1, 0.0, 1.0), Vec3::z(), 12.2), 5.0, 1.0);
+        let b = bin_key(&lv(Vec3::new(0.1, 0.0, 1.0), Vec3::z(), 12.7), 5.0, 1.0);
+        let c = bin_key(&lv(Vec3::new(0.1, 0.0, 1.0), Vec3::z(), 13.1), 5.0, 1.0);
+        let d = bin_key(&lv(Vec3::new(0.0, 0.1, 1.0), Vec3::z(), 12.2), 5.0, 1.0);
+        assert_eq!(a, b);
+        assert_ne!(a, c);
+        assert_ne!(a, d);
+    }
+}

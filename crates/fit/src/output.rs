@@ -1,0 +1,414 @@
+//! The fit's output folder:
+//!
+//! ```text
+//! OUT/fit.json            manifest: model, units, light intensity, maps, summary
+//! OUT/maps/diffuse.exr    diffuse albedo rho_d, linear RGB        (+ .png, sRGB 8-bit)
+//! OUT/maps/specular.exr   specular albedo rho_s, linear RGB       (+ .png, sRGB 8-bit)
+//! OUT/maps/roughness.exr  R = alpha_x, G = alpha_y, B = 0, linear (+ .png, linear 16-bit)
+//! OUT/maps/normal.exr     tangent-space unit normal x, y, z       (+ .png, linear 8-bit, (n + 1) / 2)
+//! OUT/maps/average.exr    mean observed colour, linear RGB        (+ .png, sRGB 8-bit)
+//! OUT/maps/clusters.png   final clusters in random colours (sRGB); clusters.exr holds ids
+//! OUT/maps/residual.exr   RMS re-rendering error per pixel, linear (+ .png, linear 16-bit, x10)
+//! OUT/maps/coverage.exr   observations per pixel (0: filled)      (+ .png, 8-bit, 0 black)
+//! OUT/rerender.png        observed frames (top) over their re-rendering (bottom), sRGB
+//! ```
+
+use std::path::Path;
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::{Deserialize, Serialize};
+use svbrdf_core::image::ImageF32;
+use svbrdf_core::maps::{write_exr, write_png, Encoding, PngDepth};
+use svbrdf_core::plane::Region;
+
+use crate::{FitError, FitSummary, FittedMaps};
+
+/// Value of the manifest's `format` field.
+pub const FIT_FORMAT: &str = "svbrdf-fit";
+/// Manifest file name.
+pub const FIT_FILE: &str = "fit.json";
+
+/// One map file.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct MapFile {
+    /// Path relative to the output folder.
+    pub file: String,
+    /// `linear` or `srgb`.
+    pub encoding: Encoding,
+    /// What the values are.
+    pub meaning: String,
+}
+
+/// `fit.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FitManifest {
+    /// Always [`FIT_FORMAT`].
+    pub format: String,
+    /// Format version (1).
+    pub version: u32,
+    /// Model: `ward` (paper eq. 10) or `ggx`.
+    pub model: String,
+    /// Plane region covered by the maps, cm; row 0 is the `y_max` edge.
+    pub region: Region,
+    /// Pixels per cm.
+    pub px_per_cm: f64,
+    /// Map width, pixels.
+    pub width: usize,
+    /// Map height, pixels.
+    pub height: usize,
+    /// Normal-map convention.
+    pub normal_convention: String,
+    /// Units of the albedos.
+    pub albedo_units: String,
+    /// Every map file.
+    pub maps: Vec<MapFile>,
+    /// The re-rendering strip.
+    pub rerender: String,
+    /// Figures of the fit.
+    pub summary: FitSummary,
+}
+
+fn plane(maps: &FittedMaps, f: impl Fn(usize) -> [f32; 3]) -> ImageF32 {
+    let g = &maps.grid;
+    let mut img = ImageF32::new(g.width, g.height, 3);
+    for (p, px) in img.data.chunks_exact_mut(3).enumerate() {
+        px.copy_from_slice(&f(p));
+    }
+    img
+}
+
+/// Write the maps, the strip and the manifest into `dir` (which must exist).
+pub fn write_outputs(
+    dir: &Path,
+    maps: &FittedMaps,
+    summary: &FitSummary,
+    strip: &ImageF32,
+) -> Result<FitManifest, FitError> {
+    let mdir = dir.join("maps");
+    std::fs::create_dir_all(&mdir).map_err(|e| svbrdf_core::CoreError::io(&mdir, e))?;
+    let normal_convention = "tangent space = plane frame: +X along plane +x (image right), \
+        +Y along plane +y (image up, OpenGL convention), +Z out of the surface; PNG stores \
+        (n + 1) / 2 linearly"
+        .to_string();
+    let mut files = Vec::new();
+    let mut put = |name: &str,
+                   img: &ImageF32,
+                   png_enc: Encoding,
+                   depth: PngDepth,
+                   meaning: &str,
+                   png_scale: f32|
+     -> Result<(), FitError> {
+        let meta = vec![
+            ("map", name.to_string()),
+            ("meaning", meaning.to_string()),
+            ("model", summary.model.clone()),
+        ];
+        let exr = format!("maps/{name}.exr");
+        let mut m = meta.clone();
+        m.push(("encoding", "linear".into()));
+        write_exr(&dir.join(&exr), img, &["R", "G", "B"], &m)?;
+        let png = format!("maps/{name}.png");
+        let mut m = meta;
+        m.push(("encoding", png_enc.as_str().into()));
+        let scaled;
+        let src = if png_scale == 1.0 {
+            img
+        } else {
+            let mut s = img.clone();
+            s.data.iter_mut().for_each(|v| *v *= png_scale);
+            scaled = s;
+            &scaled
+        };
+        write_png(&dir.join(&png), src, png_enc, depth, &m)?;
+        files.push(MapFile {
+            file: exr,
+            encoding: Encoding::Linear,
+            meaning: meaning.to_string(),
+        });
+        files.push(MapFile {
+            file: png,
+            encoding: png_enc,
+            meaning: if png_scale == 1.0 {
+                meaning.to_string()
+            } else {
+                format!("{meaning}, multiplied by {png_scale}")
+            },
+        });
+        Ok(())
+    };
+    let p = &maps.params;
+    put(
+        "diffuse",
+        &plane(maps, |i| p[i].rho_d.map(|v| v as f32)),
+        Encoding::Srgb,
+        PngDepth::Eight,
+        "diffuse albedo rho_d",
+        1.0,
+    )?;
+    put(
+        "specular",
+        &plane(maps, |i| p[i].rho_s.map(|v| v as f32)),
+        Encoding::Srgb,
+        PngDepth::Eight,
+        "specular albedo rho_s",
+        1.0,
+    )?;
+    put(
+        "roughness",
+        &plane(maps, |i| [p[i].alpha_x as f32, p[i].alpha_y as f32, 0.0]),
+        Encoding::Linear,
+        PngDepth::Sixteen,
+        "roughness: R = alpha_x (along plane x), G = alpha_y (along plane y)",
+        1.0,
+    )?;
+    let normal = plane(maps, |i| {
+        let n = p[i].normal();
+        [n.x as f32, n.y as f32, n.z as f32]
+    });
+    let normal_png = {
+        let mut s = normal.clone();
+        s.data.iter_mut().for_each(|v| *v = 0.5 * (*v + 1.0));
+        s
+    };
+    {
+        let meta = vec![
+            ("map", "normal".to_string()),
+            ("meaning", normal_convention.clone()),
+            ("encoding", "linear".to_string()),
+        ];
+        write_exr(&mdir.join("normal.exr"), &normal, &["R", "G", "B"], &meta)?;
+        write_png(
+            &mdir.join("normal.png"),
+            &normal_png,
+            Encoding::Linear,
+            PngDepth::Eight,
+            &meta,
+        )?;
+        files.push(MapFile {
+            file: "maps/normal.exr".into(),
+            encoding: Encoding::Linear,
+            meaning: "unit normal x, y, z in [-1, 1]".into(),
+        });
+        files.push(MapFile {
+            file: "maps/normal.png".into(),
+            encoding: Encoding::Linear,
+            meaning: "unit normal stored as (n + 1) / 2".into(),
+        });
+    }
+    let mut put = |name: &str,
+                   img: &ImageF32,
+                   enc: Encoding,
+                   depth: PngDepth,
+                   meaning: &str,
+                   scale: f32|
+     -> Result<(), FitError> {
+        let meta = vec![
+            ("map", name.to_string()),
+            ("meaning", meaning.to_string()),
+            ("encoding", enc.as_str().to_string()),
+        ];
+        write_exr(
+            &mdir.join(format!("{name}.exr")),
+            img,
+            &["R", "G", "B"],
+            &[
+                ("map", name.to_string()),
+                ("meaning", meaning.to_string()),
+                ("encoding", "linear".into()),
+            ],
+        )?;
+        let mut s = img.clone();
+        s.data.iter_mut().for_each(|v| *v *= scale);
+        write_png(&mdir.join(format!("{name}.png")), &s, enc, depth, &meta)?;
+        files.push(MapFile {
+            file: format!("maps/{name}.exr"),
+            encoding: Encoding::Linear,
+            meaning: meaning.to_string(),
+        });
+        files.push(MapFile {
+            file: format!("maps/{name}.png"),
+            encoding: enc,
+            meaning: if scale == 1.0 {
+                meaning.to_string()
+            } else {
+                format!("{meaning}, multiplied by {scale}")
+            },
+        });
+        Ok(())
+    };
+    put(
+        "average",
+        &plane(maps, |i| maps.average[i].map(|v| v as f32)),
+        Encoding::Srgb,
+        PngDepth::Eight,
+        "mean observed colour (linear radiance)",
+        1.0,
+    )?;
+    put(
+        "residual",
+        &plane(maps, |i| [maps.residual[i]; 3]),
+        Encoding::Linear,
+        PngDepth::Sixteen,
+        "RMS re-rendering error per pixel (linear radiance)",
+        10.0,
+    )?;
+    let max_cov = maps.coverage.iter().copied().max().unwrap_or(1).max(1) as f32;
+    put(
+        "coverage",
+        &plane(maps, |i| [maps.coverage[i] as f32; 3]),
+        Encoding::Linear,
+        PngDepth::Eight,
+        "observations per pixel (0: BRDF filled from the nearest observed cluster)",
+        1.0 / max_cov,
+    )?;
+    // Clusters: ids in the EXR, random but fixed colours in the PNG.
+    let n = maps.cluster.iter().copied().max().unwrap_or(0) as usize + 1;
+    let mut rng = ChaCha8Rng::seed_from_u64(0x5eed);
+    let colours: Vec<[f32; 3]> = (0..n)
+        .map(|_| [0; 3].map(|_| rng.random_range(0.05f32..0.9)))
+        .collect();
+    let ids = plane(maps, |i| [maps.cluster[i] as f32; 3]);
+    write_exr(
+        &mdir.join("clusters.exr"),
+        &ids,
+        &["R", "G", "B"],
+        &[
+            ("map", "clusters".into()),
+            ("meaning", "final cluster id".into()),
+        ],
+    )?;
+    write_png(
+        &mdir.join("clusters.png"),
+        &plane(maps, |i| colours[maps.cluster[i] as usize]),
+        Encoding::Srgb,
+        PngDepth::Eight,
+        &[
+            ("map", "clusters".into()),
+            ("meaning", "final clusters, random colours".into()),
+        ],
+    )?;
+    files.push(MapFile {
+        file: "maps/clusters.exr".into(),
+        encoding: Encoding::Linear,
+        meaning: "final cluster id (exact integers)".into(),
+    });
+    files.push(MapFile {
+        file: "maps/clusters.png".into(),
+        encoding: Encoding::Srgb,
+        meaning: "final clusters in random colours".into(),
+    });
+    write_png(
+        &dir.join("rerender.png"),
+        strip,
+        Encoding::Srgb,
+        PngDepth::Eight,
+        &[(
+            "meaning",
+            "top: observed frames rectified onto the plane; bottom: re-rendered from the maps"
+                .into(),
+        )],
+    )?;
+    let manifest = FitManifest {
+        format: FIT_FORMAT.into(),
+        version: 1,
+        model: summary.model.clone(),
+        region: maps.grid.region,
+        px_per_cm: maps.grid.px_per_cm,
+        width: maps.grid.width,
+        height: maps.grid.height,
+        normal_convention,
+        albedo_units: match summary.light_intensity_source {
+            crate::IntensitySource::Normalised => {
+                "relative: the light intensity was unknown and normalised (see light_intensity)"
+                    .into()
+            }
+            _ => "absolute reflectance (the light intensity was known)".into(),
+        },
+        maps: files,
+        rerender: "rerender.png".into(),
+        summary: summary.clone(),
+    };
+    svbrdf_core::fsutil::write_json(&dir.join(FIT_FILE), &manifest)?;
+    Ok(manifest)
+}
+
+/// Maps read back from an output folder: the grid and the BRDF per pixel, plus the
+/// light intensity the fit used.
+#[derive(Debug, Clone)]
+pub struct LoadedMaps {
+    /// The manifest.
+    pub manifest: FitManifest,
+    /// The grid.
+    pub grid: svbrdf_core::plane::PlaneGrid,
+    /// BRDF per pixel, row-major (normal angles recovered from the normal map).
+    pub params: Vec<svbrdf_core::brdf::BrdfParams>,
+}
+
+/// Read `fit.json` and the linear EXR maps of an output folder.
+pub fn read_maps(dir: &Path) -> Result<LoadedMaps, FitError> {
+    use svbrdf_core::brdf::BrdfParams;
+    use svbrdf_core::geometry::Vec3;
+    use svbrdf_core::maps::read_image_linear;
+    let file = dir.join(FIT_FILE);
+    let manifest: FitManifest = svbrdf_core::fsutil::read_json(&file)?;
+    if manifest.format != FIT_FORMAT || manifest.version != 1 {
+        return Err(svbrdf_core::CoreError::format(
+            &file,
+            format!(
+                "format {:?} version {} (expected {FIT_FORMAT:?} version 1)",
+                manifest.format, manifest.version
+            ),
+        )
+        .into());
+    }
+    let grid = svbrdf_core::plane::PlaneGrid::new(manifest.region, manifest.px_per_cm)?;
+    let read = |name: &str| -> Result<ImageF32, FitError> {
+        let p = dir.join("maps").join(format!("{name}.exr"));
+        let img = read_image_linear(&p, Encoding::Linear)?;
+        if img.width != grid.width || img.height != grid.height {
+            return Err(svbrdf_core::CoreError::format(
+                &p,
+                format!(
+                    "{}x{} pixels, but fit.json says {}x{}",
+                    img.width, img.height, grid.width, grid.height
+                ),
+            )
+            .into());
+        }
+        Ok(img)
+    };
+    let (d, s, r, n) = (
+        read("diffuse")?,
+        read("specular")?,
+        read("roughness")?,
+        read("normal")?,
+    );
+    let params = (0..grid.len())
+        .map(|i| {
+            let px = |img: &ImageF32| -> [f64; 3] {
+                let v = &img.data[3 * i..3 * i + 3];
+                [f64::from(v[0]), f64::from(v[1]), f64::from(v[2])]
+            };
+            let nv = px(&n);
+            let normal = Vec3::new(nv[0], nv[1], nv[2])
+                .try_normalize(1e-9)
+                .unwrap_or_else(Vec3::z);
+            let (tx, ty) = BrdfParams::angles_from_normal(normal);
+            let rv = px(&r);
+            BrdfParams {
+                rho_d: px(&d),
+                rho_s: px(&s),
+                alpha_x: rv[0],
+                alpha_y: rv[1],
+                normal_theta_x: tx,
+                normal_theta_y: ty,
+            }
+        })
+        .collect();
+    Ok(LoadedMaps {
+        manifest,
+        grid,
+        params,
+    })
+}

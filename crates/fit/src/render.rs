@@ -1,0 +1,217 @@
+//! Rendering from fitted maps: re-rendering every observation (the paper's supplemental
+//! comparison, done in the plane's rectified frame so that no frame has to be decoded
+//! again), the side-by-side strip, per-pixel residuals and relighting under a new light.
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use svbrdf_core::brdf::{BrdfModel, BrdfParams, LightView, Prepared};
+use svbrdf_core::geometry::Vec3;
+use svbrdf_core::image::ImageF32;
+use svbrdf_core::plane::PlaneGrid;
+
+use crate::observations::Observations;
+
+/// Re-rendering error of one input frame.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct FrameError {
+    /// Frame id in the capture.
+    pub id: u32,
+    /// Observations of this frame inside the output region.
+    pub observations: usize,
+    /// Root mean square error of linear radiance over observations and channels.
+    pub rmse: f64,
+    /// Mean observed linear radiance.
+    pub mean: f64,
+    /// `rmse / mean`.
+    pub relative: f64,
+}
+
+/// Predicted linear radiance of observation `o` of pixel `px`.
+#[inline]
+fn predict(
+    obs: &Observations,
+    model: &dyn BrdfModel,
+    prep: &Prepared,
+    intensity: [f64; 3],
+    px: usize,
+    o: usize,
+) -> [f64; 3] {
+    let v = model.radiance(prep, &obs.light_view(px, o), 1.0);
+    [
+        v[0] * intensity[0],
+        v[1] * intensity[1],
+        v[2] * intensity[2],
+    ]
+}
+
+/// Error of every frame's re-rendering against what it observed.
+pub fn frame_errors(
+    obs: &Observations,
+    params: &[BrdfParams],
+    model: &dyn BrdfModel,
+    intensity: [f64; 3],
+) -> Vec<FrameError> {
+    let nf = obs.frames.len();
+    let acc = (0..obs.pixels())
+        .into_par_iter()
+        .with_min_len(1024)
+        .fold(
+            || vec![(0.0f64, 0.0f64, 0usize); nf],
+            |mut acc, px| {
+                if obs.count(px) > 0 {
+                    let prep = Prepared::new(params[px]);
+                    for o in obs.range(px) {
+                        let v = predict(obs, model, &prep, intensity, px, o);
+                        let c = obs.color(o);
+                        let a = &mut acc[usize::from(obs.frame[o])];
+                        for k in 0..3 {
+                            a.0 += (v[k] - c[k]).powi(2);
+                            a.1 += c[k];
+                        }
+                        a.2 += 1;
+                    }
+                }
+                acc
+            },
+        )
+        .reduce(
+            || vec![(0.0, 0.0, 0); nf],
+            |mut a, b| {
+                for (x, y) in a.iter_mut().zip(b) {
+                    x.0 += y.0;
+                    x.1 += y.1;
+                    x.2 += y.2;
+                }
+                a
+            },
+        );
+    acc.into_iter()
+        .enumerate()
+        .map(|(k, (sse, sum, n))| {
+            let m = (3 * n).max(1) as f64;
+            let rmse = (sse / m).sqrt();
+            let mean = sum / m;
+            FrameError {
+                id: obs.frames[k].id,
+                observations: n,
+                rmse,
+                mean,
+                relative: if mean > 0.0 { rmse / mean } else { 0.0 },
+            }
+        })
+        .collect()
+}
+
+/// Root mean square error per pixel over its observations (linear radiance; 0 where
+/// unobserved).
+pub fn pixel_residuals(
+    obs: &Observations,
+    params: &[BrdfParams],
+    model: &dyn BrdfModel,
+    intensity: [f64; 3],
+) -> Vec<f32> {
+    (0..obs.pixels())
+        .into_par_iter()
+        .with_min_len(1024)
+        .map(|px| {
+            let n = obs.count(px);
+            if n == 0 {
+                return 0.0;
+            }
+            let prep = Prepared::new(params[px]);
+            let mut s = 0.0;
+            for o in obs.range(px) {
+                let v = predict(obs, model, &prep, intensity, px, o);
+                let c = obs.color(o);
+                for k in 0..3 {
+                    s += (v[k] - c[k]).powi(2);
+                }
+            }
+            (s / (3 * n) as f64).sqrt() as f32
+        })
+        .collect()
+}
+
+/// Side-by-side strip: for each chosen frame number, the observed frame rectified onto
+/// the plane (top row) above its re-rendering from the maps (bottom row), each tile
+/// block-averaged to at most `max_tile` pixels on its long side. Unobserved: dark grey.
+pub fn strip(
+    obs: &Observations,
+    params: &[BrdfParams],
+    model: &dyn BrdfModel,
+    intensity: [f64; 3],
+    frames: &[usize],
+    max_tile: usize,
+) -> ImageF32 {
+    let g = obs.grid;
+    let d = g.width.max(g.height).div_ceil(max_tile.max(1)).max(1);
+    let (tw, th) = (g.width.div_ceil(d), g.height.div_ceil(d));
+    let gap = 4;
+    let n = frames.len().max(1);
+    let mut img = ImageF32::new(n * tw + (n + 1) * gap, 2 * th + 3 * gap, 3);
+    img.data.fill(1.0);
+    for (i, &f) in frames.iter().enumerate() {
+        // Sums per tile pixel: observed rgb, rendered rgb, count.
+        let mut acc = vec![[0.0f64; 7]; tw * th];
+        for px in 0..obs.pixels() {
+            let range = obs.range(px);
+            let Some(o) = range.clone().find(|&o| usize::from(obs.frame[o]) == f) else {
+                continue;
+            };
+            let prep = Prepared::new(params[px]);
+            let v = predict(obs, model, &prep, intensity, px, o);
+            let c = obs.color(o);
+            let t = (px / g.width / d) * tw + (px % g.width) / d;
+            for k in 0..3 {
+                acc[t][k] += c[k];
+                acc[t][3 + k] += v[k];
+            }
+            acc[t][6] += 1.0;
+        }
+        for ty in 0..th {
+            for tx in 0..tw {
+                let a = acc[ty * tw + tx];
+                for (row, off) in [(0usize, 0usize), (1, 3)] {
+                    let x = gap + i * (tw + gap) + tx;
+                    let y = gap + row * (th + gap) + ty;
+                    let p = img.pixel_mut(x, y);
+                    for k in 0..3 {
+                        p[k] = if a[6] > 0.0 {
+                            (a[off + k] / a[6]) as f32
+                        } else {
+                            0.05
+                        };
+                    }
+                }
+            }
+        }
+    }
+    img
+}
+
+/// Linear radiance of every grid pixel under a point light, seen from `camera` (the
+/// simulator's held-out relighting images use the same set-up).
+pub fn relight(
+    grid: &PlaneGrid,
+    params: &[BrdfParams],
+    model: &dyn BrdfModel,
+    intensity: [f64; 3],
+    light: Vec3,
+    camera: Vec3,
+) -> ImageF32 {
+    let mut img = ImageF32::new(grid.width, grid.height, 3);
+    img.data
+        .par_chunks_mut(grid.width * 3)
+        .enumerate()
+        .for_each(|(r, line)| {
+            for c in 0..grid.width {
+                let q = grid.pixel_centre(c, r);
+                let lv = LightView::from_points(Vec3::new(q.x, q.y, 0.0), light, camera);
+                let v = model.radiance(&Prepared::new(params[r * grid.width + c]), &lv, 1.0);
+                for k in 0..3 {
+                    line[c * 3 + k] = (v[k] * intensity[k]) as f32;
+                }
+            }
+        });
+    img
+}
