@@ -28,6 +28,10 @@ pub struct BenchArgs {
     /// the fit (albedos are compared after one global scale factor).
     #[arg(long, requires = "truth")]
     fit_capture: Option<std::path::PathBuf>,
+    /// With --fit-capture: write, per held-out light, truth | fit | 4 x |difference|
+    /// as sRGB PNGs into this folder.
+    #[arg(long, requires = "fit_capture")]
+    fit_pictures: Option<std::path::PathBuf>,
     /// Model for --fit-capture: ward or ggx.
     #[arg(long, default_value = "ward")]
     fit_model: String,
@@ -223,12 +227,33 @@ pub fn load_truth(synth_dir: &std::path::Path) -> Result<svbrdf_fit::evaluate::T
     })
 }
 
+/// Accuracy of the maps in a `svbrdf fit` output folder against the simulator's truth.
+pub fn maps_accuracy(
+    fit_dir: &std::path::Path,
+    synth_dir: &std::path::Path,
+) -> Result<svbrdf_fit::evaluate::Accuracy> {
+    let truth = load_truth(synth_dir)?;
+    let maps = svbrdf_fit::output::read_maps(fit_dir)?;
+    let model = match maps.manifest.model.as_str() {
+        "ggx" => ModelKind::Ggx,
+        _ => ModelKind::Ward,
+    };
+    Ok(svbrdf_fit::evaluate::evaluate(
+        &maps.grid,
+        &maps.params,
+        model.model(),
+        maps.manifest.summary.light_intensity,
+        &truth,
+    ))
+}
+
 /// Fit a capture with the intensity withheld, with and without refinement, and compare
 /// with the simulator's truth: one JSON object per setting.
 pub fn fit_accuracy(
     capture_dir: &std::path::Path,
     synth_dir: &std::path::Path,
     model: &str,
+    pictures: Option<&std::path::Path>,
 ) -> Result<Vec<serde_json::Value>> {
     use svbrdf_fit::FrameSource;
     svbrdf_cv::set_single_threaded()?;
@@ -265,6 +290,30 @@ pub fn fit_accuracy(
             summary.light_intensity,
             &truth,
         );
+        if let Some(dir) = pictures {
+            std::fs::create_dir_all(dir)?;
+            for (k, (img, light, camera)) in truth.holdout.iter().enumerate() {
+                let ours = svbrdf_fit::render::relight(
+                    &grid,
+                    &maps.params,
+                    cfg.model.model(),
+                    summary.light_intensity,
+                    *light,
+                    *camera,
+                );
+                let pic = holdout_picture(&grid, &ours, &truth.grid, img);
+                svbrdf_core::maps::write_png(
+                    &dir.join(format!("holdout_{k:02}_refine_{refine}.png")),
+                    &pic,
+                    svbrdf_core::maps::Encoding::Srgb,
+                    svbrdf_core::maps::PngDepth::Eight,
+                    &[(
+                        "meaning",
+                        "held-out light: truth | fit | 4 x |difference|, linear radiance".into(),
+                    )],
+                )?;
+            }
+        }
         out.push(json!({
             "bench": "fit_accuracy",
             "capture": capture_dir.display().to_string(),
@@ -287,9 +336,38 @@ pub fn fit_accuracy(
     Ok(out)
 }
 
+/// Truth, fit and four times their absolute difference side by side, on the fit's
+/// grid, at most 600 pixels wide per panel.
+fn holdout_picture(
+    grid: &svbrdf_core::plane::PlaneGrid,
+    ours: &svbrdf_core::image::ImageF32,
+    tgrid: &svbrdf_core::plane::PlaneGrid,
+    truth: &svbrdf_core::image::ImageF32,
+) -> svbrdf_core::image::ImageF32 {
+    let d = grid.width.max(grid.height).div_ceil(600).max(1);
+    let (w, h) = (grid.width / d, grid.height / d);
+    let mut pic = svbrdf_core::image::ImageF32::new(3 * w + 8, h, 3);
+    pic.data.fill(1.0);
+    for y in 0..h {
+        for x in 0..w {
+            let (c, r) = (x * d + d / 2, y * d + d / 2);
+            let tp = tgrid.to_pixel(grid.pixel_centre(c, r));
+            let mut t = [0f32; 3];
+            truth.sample_bilinear(tp.x, tp.y, &mut t);
+            let o = ours.pixel(c, r);
+            for k in 0..3 {
+                pic.pixel_mut(x, y)[k] = t[k];
+                pic.pixel_mut(w + 4 + x, y)[k] = o[k];
+                pic.pixel_mut(2 * w + 8 + x, y)[k] = 4.0 * (o[k] - t[k]).abs();
+            }
+        }
+    }
+    pic
+}
+
 pub fn run(a: &BenchArgs) -> Result<()> {
     if let (Some(c), Some(t)) = (&a.fit_capture, &a.truth) {
-        for v in fit_accuracy(c, t, &a.fit_model)? {
+        for v in fit_accuracy(c, t, &a.fit_model, a.fit_pictures.as_deref())? {
             println!("{v}");
         }
         if a.no_brdf && a.align_capture.is_none() {

@@ -94,8 +94,8 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
     let s = &run.manifest.summary;
     println!("wrote {}", run.out.display());
     println!(
-        "observations: {} ({} clipped dropped); {} of {} pixels observed at least {} times",
-        s.observations, s.dropped_saturated, s.covered_pixels, s.pixels, cfg.min_observations
+        "observations: {} ({} with a clipped channel); {} of {} pixels observed at least {} times",
+        s.observations, s.clipped_observations, s.covered_pixels, s.pixels, cfg.min_observations
     );
     println!(
         "clusters: {} initial (k-means elbow), {} final, deepest split level {}; {} stopped at the iteration cap",

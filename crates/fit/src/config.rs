@@ -20,9 +20,14 @@ pub struct FitConfig {
     pub light_intensity: Option<[f64; 3]>,
     /// Target of the intensity normalisation when the intensity is unknown.
     pub normalised_albedo: f64,
-    /// Observations whose linear value exceeds this in any channel are dropped as
-    /// clipped (the 8-bit video saturates in flash highlights).
+    /// Channels whose linear value reaches this are clipped (the 8-bit video saturates
+    /// in flash highlights).
     pub saturation: f64,
+    /// Keep clipped channels as censored observations ("at least the saturation
+    /// value") instead of dropping the observation. Measured on the simulator: it
+    /// fixes the strength of clipped highlights but lets the specular colour of
+    /// clipped channels drift, for no net gain in relighting error; off by default.
+    pub censor_clipped: bool,
     /// Observations within this many frame pixels of the image border are dropped.
     pub border_px: f64,
     /// Pixels with fewer observations are not fitted on their own: they take their
@@ -81,6 +86,7 @@ impl Default for FitConfig {
             light_intensity: None,
             normalised_albedo: 0.8,
             saturation: 0.98,
+            censor_clipped: false,
             border_px: 2.0,
             min_observations: 3,
             k_min: 2,

@@ -44,6 +44,8 @@ pub struct Accuracy {
     pub relight_relative_rmse: Vec<f64>,
     /// Mean of the above.
     pub relight_relative_rmse_mean: f64,
+    /// Per held-out light: mean fitted radiance over mean true radiance (1 = no bias).
+    pub relight_mean_ratio: Vec<f64>,
 }
 
 fn sample(img: &ImageF32, grid: &PlaneGrid, q: Vec2) -> [f64; 3] {
@@ -108,27 +110,29 @@ pub fn evaluate(
         let k = angles.len() / 2;
         *angles.select_nth_unstable_by(k, f64::total_cmp).1
     };
-    let relight_relative_rmse: Vec<f64> = truth
+    let (relight_relative_rmse, relight_mean_ratio): (Vec<f64>, Vec<f64>) = truth
         .holdout
         .iter()
         .map(|(img, light, camera)| {
             let ours = relight(grid, params, model, intensity, *light, *camera);
-            let (mut se, mut sum) = (0.0, 0.0);
+            let (mut se, mut sum, mut sum_ours) = (0.0, 0.0, 0.0);
             for &(i, q) in &idx {
                 let t = sample(img, &truth.grid, q);
                 for c in 0..3 {
-                    se += (f64::from(ours.data[3 * i + c]) - t[c]).powi(2);
+                    let o = f64::from(ours.data[3 * i + c]);
+                    se += (o - t[c]).powi(2);
                     sum += t[c];
+                    sum_ours += o;
                 }
             }
             let mean = sum / (3.0 * n);
             if mean > 0.0 {
-                (se / (3.0 * n)).sqrt() / mean
+                ((se / (3.0 * n)).sqrt() / mean, sum_ours / sum)
             } else {
-                0.0
+                (0.0, 0.0)
             }
         })
-        .collect();
+        .unzip();
     let relight_relative_rmse_mean =
         relight_relative_rmse.iter().sum::<f64>() / relight_relative_rmse.len().max(1) as f64;
     Accuracy {
@@ -139,5 +143,6 @@ pub fn evaluate(
         normal_median_deg,
         relight_relative_rmse,
         relight_relative_rmse_mean,
+        relight_mean_ratio,
     }
 }

@@ -204,8 +204,9 @@ pub struct FitSummary {
     pub light_intensity_source: IntensitySource,
     /// Observations used.
     pub observations: usize,
-    /// Observations dropped as clipped.
-    pub dropped_saturated: u64,
+    /// Observations with a clipped channel (dropped, or kept as censored values with
+    /// `censor_clipped`).
+    pub clipped_observations: u64,
     /// Pixels with at least `min_observations`.
     pub covered_pixels: usize,
     /// All pixels.
@@ -334,6 +335,7 @@ fn refine(ctx: &Context, params: &mut [BrdfParams], covered: &[bool]) {
                     lv: obs.light_view(px, o),
                     rgb: obs.color(o),
                     weight: 1.0,
+                    clipped: obs.clipped(o),
                 })
                 .collect();
             let prob = Problem {
@@ -476,7 +478,7 @@ pub fn fit(
         light_intensity: intensity,
         light_intensity_source: source,
         observations: obs.len(),
-        dropped_saturated: obs.dropped_saturated,
+        clipped_observations: obs.clipped,
         covered_pixels: covered_px.len(),
         pixels: npx,
         initial_clusters: init.k,

@@ -20,6 +20,23 @@ use crate::FitError;
 
 /// Linear value 1.0 is stored as this.
 pub const RGB_SCALE: f64 = 65535.0;
+/// Stored value of a clipped channel: the true value is at least the saturation
+/// threshold (unclipped values are stored below it, so this is unambiguous).
+pub const CLIPPED: u16 = u16::MAX;
+
+/// Residual of a prediction against an observed channel. A clipped channel only says
+/// "at least this bright": predicting above it costs nothing (a censored observation),
+/// so flash highlights that the 8-bit video clipped still pull the specular lobe up
+/// instead of being thrown away or pulling it down.
+#[inline]
+pub fn residual(pred: f64, observed: f64, clipped: bool) -> f64 {
+    let r = pred - observed;
+    if clipped {
+        r.min(0.0)
+    } else {
+        r
+    }
+}
 
 /// Where a frame's camera and light were.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -47,8 +64,11 @@ pub struct Observations {
     pub rgb: Vec<[u16; 3]>,
     /// Redundant-observation bin per observation (see [`bin_key`]).
     pub key: Vec<u32>,
-    /// Observations dropped because a channel was clipped.
-    pub dropped_saturated: u64,
+    /// Observations with at least one clipped channel (kept as censored values with
+    /// [`FitConfig::censor_clipped`], dropped otherwise).
+    pub clipped: u64,
+    /// Linear value at and above which a channel counts as clipped.
+    pub saturation: f64,
 }
 
 impl Observations {
@@ -77,10 +97,23 @@ impl Observations {
         self.start[px + 1] - self.start[px]
     }
 
-    /// Linear colour of observation `o`.
+    /// Linear colour of observation `o` (a clipped channel reads as the saturation
+    /// threshold).
     #[inline]
     pub fn color(&self, o: usize) -> [f64; 3] {
-        self.rgb[o].map(|v| f64::from(v) / RGB_SCALE)
+        self.rgb[o].map(|v| {
+            if v == CLIPPED {
+                self.saturation
+            } else {
+                f64::from(v) / RGB_SCALE
+            }
+        })
+    }
+
+    /// Which channels of observation `o` are clipped.
+    #[inline]
+    pub fn clipped(&self, o: usize) -> [bool; 3] {
+        self.rgb[o].map(|v| v == CLIPPED)
     }
 
     /// Plane point (cm, z = 0) of a pixel's centre.
@@ -154,6 +187,7 @@ pub struct ObservationBuilder {
     per_frame: Vec<FrameObs>,
     saturated: Vec<u64>,
     saturation: f32,
+    censor: bool,
     border: f64,
     bin_deg: f64,
     bin_cm: f64,
@@ -193,6 +227,7 @@ impl ObservationBuilder {
             per_frame: vec![Vec::new(); capture.frames.len()],
             saturated: vec![0; capture.frames.len()],
             saturation: cfg.saturation as f32,
+            censor: cfg.censor_clipped,
             border: cfg.border_px,
             bin_deg: cfg.bin_deg,
             bin_cm: cfg.bin_cm,
@@ -252,6 +287,7 @@ impl ObservationBuilder {
             f64::from(h) - 1.0 - self.border,
         );
         let (border, sat, bd, bc) = (self.border, self.saturation, self.bin_deg, self.bin_cm);
+        let censor = self.censor;
         let rows: Vec<(FrameObs, u64)> = (r0..r1)
             .into_par_iter()
             .map(|r| {
@@ -270,11 +306,21 @@ impl ObservationBuilder {
                     if !c.iter().all(|v| v.is_finite()) {
                         continue;
                     }
-                    if c.iter().any(|v| *v > sat) {
+                    if c.iter().any(|v| *v >= sat) {
                         clipped += 1;
-                        continue;
+                        if !censor {
+                            continue;
+                        }
                     }
-                    let rgb = c.map(|v| (f64::from(v.max(0.0)) * RGB_SCALE).round() as u16);
+                    let rgb = c.map(|v| {
+                        if v >= sat {
+                            CLIPPED
+                        } else {
+                            (f64::from(v.max(0.0)) * RGB_SCALE)
+                                .round()
+                                .min(f64::from(CLIPPED - 1)) as u16
+                        }
+                    });
                     let lv =
                         LightView::from_points(Vec3::new(q.x, q.y, 0.0), geom.light, geom.camera);
                     out.push(((r * grid.width + col) as u32, rgb, bin_key(&lv, bd, bc)));
@@ -324,7 +370,8 @@ impl ObservationBuilder {
             frame,
             rgb,
             key,
-            dropped_saturated: self.saturated.iter().sum(),
+            clipped: self.saturated.iter().sum(),
+            saturation: f64::from(self.saturation),
         }
     }
 }

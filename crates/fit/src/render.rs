@@ -9,7 +9,7 @@ use svbrdf_core::geometry::Vec3;
 use svbrdf_core::image::ImageF32;
 use svbrdf_core::plane::PlaneGrid;
 
-use crate::observations::Observations;
+use crate::observations::{residual, Observations};
 
 /// Re-rendering error of one input frame.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -63,9 +63,10 @@ pub fn frame_errors(
                     for o in obs.range(px) {
                         let v = predict(obs, model, &prep, intensity, px, o);
                         let c = obs.color(o);
+                        let cl = obs.clipped(o);
                         let a = &mut acc[usize::from(obs.frame[o])];
                         for k in 0..3 {
-                            a.0 += (v[k] - c[k]).powi(2);
+                            a.0 += residual(v[k], c[k], cl[k]).powi(2);
                             a.1 += c[k];
                         }
                         a.2 += 1;
@@ -123,8 +124,9 @@ pub fn pixel_residuals(
             for o in obs.range(px) {
                 let v = predict(obs, model, &prep, intensity, px, o);
                 let c = obs.color(o);
+                let cl = obs.clipped(o);
                 for k in 0..3 {
-                    s += (v[k] - c[k]).powi(2);
+                    s += residual(v[k], c[k], cl[k]).powi(2);
                 }
             }
             (s / (3 * n) as f64).sqrt() as f32

@@ -10,6 +10,8 @@
 //! a physical material.
 
 use nalgebra::{SMatrix, SVector};
+
+use crate::observations::residual;
 use svbrdf_core::brdf::{BrdfModel, BrdfParams, LightView, Prepared, N_PARAMS};
 
 type Mat = SMatrix<f64, N_PARAMS, N_PARAMS>;
@@ -24,6 +26,9 @@ pub struct Sample {
     pub rgb: [f64; 3],
     /// Weight (the number of raw observations averaged into it).
     pub weight: f64,
+    /// Channels that were clipped: `rgb` is then a lower bound (see
+    /// [`crate::observations::residual`]).
+    pub clipped: [bool; 3],
 }
 
 /// Which parameters move.
@@ -143,7 +148,7 @@ impl Problem<'_> {
             let v = self.model.radiance(&p, &o.lv, 1.0);
             let mut e = 0.0;
             for c in 0..3 {
-                e += (v[c] * self.intensity[c] - o.rgb[c]).powi(2);
+                e += residual(v[c] * self.intensity[c], o.rgb[c], o.clipped[c]).powi(2);
             }
             s += o.weight * e;
         }
@@ -160,7 +165,10 @@ impl Problem<'_> {
             let g = self.model.radiance_grad(&p, &o.lv, 1.0);
             for c in 0..3 {
                 let i = self.intensity[c];
-                let r = g.value[c] * i - o.rgb[c];
+                let r = residual(g.value[c] * i, o.rgb[c], o.clipped[c]);
+                if r == 0.0 && o.clipped[c] {
+                    continue;
+                }
                 cost += o.weight * r * r;
                 // Non-zero Jacobian entries of this channel's residual.
                 let mut idx = [0usize; 6];
@@ -345,6 +353,7 @@ mod tests {
                     lv,
                     rgb: v,
                     weight: 1.0,
+                    clipped: [false; 3],
                 }
             })
             .collect()

@@ -14,7 +14,7 @@ use svbrdf_core::brdf::{BrdfModel, BrdfParams, LightView, Prepared};
 use svbrdf_core::geometry::Vec3;
 
 use crate::config::FitConfig;
-use crate::observations::Observations;
+use crate::observations::{residual, Observations};
 use crate::solver::{Bounds, Freedom, Problem, Sample};
 
 /// Everything a cluster fit needs.
@@ -71,8 +71,9 @@ impl Hasher for KeyHasher {
             self.0 = (self.0.rotate_left(8) ^ u64::from(*b)).wrapping_mul(0x9E37_79B9_7F4A_7C15);
         }
     }
-    fn write_u32(&mut self, v: u32) {
-        self.0 = (u64::from(v) ^ 0x5bd1_e995).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+    fn write_u64(&mut self, v: u64) {
+        self.0 = (v ^ 0x5bd1_e995).wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        self.0 ^= self.0 >> 29;
     }
 }
 
@@ -92,20 +93,28 @@ pub fn binned_samples(ctx: &Context, pixels: &[u32]) -> Vec<Sample> {
         r2: f64,
         rgb: [f64; 3],
         n: f64,
+        clipped: [bool; 3],
     }
     let obs = ctx.obs;
-    let mut index: HashMap<u32, usize, BuildHasherDefault<KeyHasher>> = HashMap::default();
+    let mut index: HashMap<u64, usize, BuildHasherDefault<KeyHasher>> = HashMap::default();
     let mut accs: Vec<Acc> = Vec::new();
     for &px in spread(pixels, ctx.cfg.max_fit_pixels) {
         let px = px as usize;
         for o in obs.range(px) {
-            let slot = *index.entry(obs.key[o]).or_insert_with(|| {
-                accs.push(Acc::default());
-                accs.len() - 1
-            });
+            let cl = obs.clipped(o);
+            // Clipped and unclipped observations never share a bin: one is a value, the
+            // other a lower bound.
+            let mask = u64::from(cl[0]) | u64::from(cl[1]) << 1 | u64::from(cl[2]) << 2;
+            let slot = *index
+                .entry(u64::from(obs.key[o]) | mask << 32)
+                .or_insert_with(|| {
+                    accs.push(Acc::default());
+                    accs.len() - 1
+                });
             let lv = obs.light_view(px, o);
             let c = obs.color(o);
             let a = &mut accs[slot];
+            a.clipped = cl;
             a.l += lv.light;
             a.v += lv.view;
             a.r2 += lv.light_dist2;
@@ -125,6 +134,7 @@ pub fn binned_samples(ctx: &Context, pixels: &[u32]) -> Vec<Sample> {
                 },
                 rgb: a.rgb.map(|v| v / a.n),
                 weight: a.n,
+                clipped: a.clipped,
             })
         })
         .collect()
@@ -144,8 +154,9 @@ pub fn pixel_errors(ctx: &Context, pixels: &[u32], params: &BrdfParams) -> (Vec<
             for o in obs.range(px) {
                 let v = ctx.model.radiance(&p, &obs.light_view(px, o), 1.0);
                 let c = obs.color(o);
+                let cl = obs.clipped(o);
                 for k in 0..3 {
-                    s += (v[k] * ctx.intensity[k] - c[k]).powi(2);
+                    s += residual(v[k] * ctx.intensity[k], c[k], cl[k]).powi(2);
                 }
             }
             (s, obs.count(px))

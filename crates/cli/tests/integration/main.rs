@@ -3,5 +3,6 @@
 
 mod align;
 mod bad_input;
+mod fit;
 mod synth;
 mod util;
