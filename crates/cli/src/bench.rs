@@ -32,6 +32,9 @@ pub struct BenchArgs {
     /// as sRGB PNGs into this folder.
     #[arg(long, requires = "fit_capture")]
     fit_pictures: Option<std::path::PathBuf>,
+    /// Settings file for --fit-capture (JSON subset of `FitConfig`).
+    #[arg(long, requires = "fit_capture")]
+    fit_config: Option<std::path::PathBuf>,
     /// Model for --fit-capture: ward or ggx.
     #[arg(long, default_value = "ward")]
     fit_model: String,
@@ -253,6 +256,7 @@ pub fn fit_accuracy(
     capture_dir: &std::path::Path,
     synth_dir: &std::path::Path,
     model: &str,
+    config: Option<&std::path::Path>,
     pictures: Option<&std::path::Path>,
 ) -> Result<Vec<serde_json::Value>> {
     use svbrdf_fit::FrameSource;
@@ -263,6 +267,7 @@ pub fn fit_accuracy(
     let mut cfg = crate::fit_cmd::fit_config(&crate::fit_cmd::FitArgs {
         capture: capture_dir.into(),
         out: std::path::PathBuf::new(),
+        config: config.map(Into::into),
         model: model.into(),
         px_per_cm: None,
         light_intensity: None,
@@ -367,7 +372,13 @@ fn holdout_picture(
 
 pub fn run(a: &BenchArgs) -> Result<()> {
     if let (Some(c), Some(t)) = (&a.fit_capture, &a.truth) {
-        for v in fit_accuracy(c, t, &a.fit_model, a.fit_pictures.as_deref())? {
+        for v in fit_accuracy(
+            c,
+            t,
+            &a.fit_model,
+            a.fit_config.as_deref(),
+            a.fit_pictures.as_deref(),
+        )? {
             println!("{v}");
         }
         if a.no_brdf && a.align_capture.is_none() {

@@ -18,6 +18,10 @@ pub struct FitArgs {
     /// Output folder for the maps (must not exist unless --overwrite).
     #[arg(long)]
     pub out: PathBuf,
+    /// Settings file (JSON; any subset of the fields of `svbrdf_fit::FitConfig`, e.g.
+    /// `{"min_cluster_px": 100, "refine_prior": 4}`); the flags below override it.
+    #[arg(long)]
+    pub config: Option<PathBuf>,
     /// Reflectance model: `ward` (the paper's) or `ggx` (with Fresnel).
     #[arg(long, default_value = "ward")]
     pub model: String,
@@ -40,16 +44,21 @@ pub struct FitArgs {
 }
 
 pub fn fit_config(a: &FitArgs) -> Result<FitConfig> {
-    let mut c = FitConfig {
-        model: match a.model.as_str() {
-            "ward" => ModelKind::Ward,
-            "ggx" => ModelKind::Ggx,
-            m => anyhow::bail!("invalid model {m:?} (expected ward or ggx)"),
-        },
-        px_per_cm: a.px_per_cm,
-        refine: !a.no_refine,
-        ..FitConfig::default()
+    let mut c: FitConfig = match &a.config {
+        Some(p) => svbrdf_core::fsutil::read_json(p)?,
+        None => FitConfig::default(),
     };
+    c.model = match a.model.as_str() {
+        "ward" => ModelKind::Ward,
+        "ggx" => ModelKind::Ggx,
+        m => anyhow::bail!("invalid model {m:?} (expected ward or ggx)"),
+    };
+    if a.px_per_cm.is_some() {
+        c.px_per_cm = a.px_per_cm;
+    }
+    if a.no_refine {
+        c.refine = false;
+    }
     if let Some(i) = &a.light_intensity {
         c.light_intensity = Some(match i.as_slice() {
             [v] => [*v; 3],

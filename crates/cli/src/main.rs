@@ -316,6 +316,7 @@ fn run_demo(a: &DemoArgs) -> Result<()> {
     let fit_args = fit_cmd::FitArgs {
         capture: args.out.clone(),
         out: a.out.join("maps"),
+        config: None,
         model: "ward".into(),
         px_per_cm: None,
         light_intensity: None,

@@ -72,6 +72,10 @@ pub struct FitConfig {
     /// Strength of the refinement's pull towards the cluster solution, in observations:
     /// the prior weighs as much as this many average observations of each parameter.
     pub refine_prior: f64,
+    /// Largest change of either normal angle the refinement may make, degrees: a trust
+    /// region that keeps a pixel's normal near its cluster's. Without it a few pixels
+    /// with a sharp specular lobe tilt to the bound and light up under oblique light.
+    pub refine_max_normal_change_deg: f64,
     /// Gauss-Newton iterations of the per-pixel refinement.
     pub refine_iterations: usize,
     /// Frames shown in the re-rendering strip.
@@ -106,6 +110,7 @@ impl Default for FitConfig {
             refine: true,
             refine_prior: 2.0,
             refine_iterations: 6,
+            refine_max_normal_change_deg: 8.0,
             strip_frames: 4,
         }
     }
@@ -188,6 +193,14 @@ impl FitConfig {
         }
         if !(self.max_normal_deg >= 0.0 && self.max_normal_deg < 80.0) {
             return bad("normal bound", &self.max_normal_deg, "degrees in [0, 80)");
+        }
+        if !(self.refine_max_normal_change_deg >= 0.0 && self.refine_max_normal_change_deg <= 90.0)
+        {
+            return bad(
+                "refinement normal change",
+                &self.refine_max_normal_change_deg,
+                "degrees in [0, 90]",
+            );
         }
         if !(self.refine_prior >= 0.0 && self.refine_prior.is_finite()) {
             return bad("refinement prior", &self.refine_prior, ">= 0");

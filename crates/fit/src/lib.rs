@@ -320,7 +320,8 @@ fn fill_unobserved(grid: &PlaneGrid, cluster: &mut [u32], known: &[bool]) {
 /// `refine_prior` average observations of each parameter.
 fn refine(ctx: &Context, params: &mut [BrdfParams], covered: &[bool]) {
     let obs = ctx.obs;
-    let bounds = ctx.bounds();
+    let global = ctx.bounds();
+    let delta = ctx.cfg.refine_max_normal_change_deg.to_radians();
     params
         .par_iter_mut()
         .with_min_len(256)
@@ -338,13 +339,18 @@ fn refine(ctx: &Context, params: &mut [BrdfParams], covered: &[bool]) {
                     clipped: obs.clipped(o),
                 })
                 .collect();
+            let x0 = p.to_array();
+            let mut bounds = global;
+            for k in 0..2 {
+                bounds.normal_lo[k] = (x0[8 + k] - delta).max(global.normal_lo[k]);
+                bounds.normal_hi[k] = (x0[8 + k] + delta).min(global.normal_hi[k]);
+            }
             let prob = Problem {
                 model: ctx.model,
                 samples: &samples,
                 intensity: ctx.intensity,
                 bounds,
             };
-            let x0 = p.to_array();
             let info = prob.information(&x0, &Freedom::DIFFUSE_AND_NORMAL);
             let n = samples.len() as f64;
             let prior = Prior {

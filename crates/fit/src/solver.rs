@@ -69,8 +69,22 @@ pub struct Bounds {
     pub alpha_min: f64,
     /// Largest alpha.
     pub alpha_max: f64,
-    /// Largest |normal angle|, radians.
-    pub max_normal: f64,
+    /// Lower bounds of the two normal angles, radians.
+    pub normal_lo: [f64; 2],
+    /// Upper bounds of the two normal angles, radians.
+    pub normal_hi: [f64; 2],
+}
+
+impl Bounds {
+    /// Bounds with `|theta| <= max_normal` for both normal angles.
+    pub fn symmetric(alpha_min: f64, alpha_max: f64, max_normal: f64) -> Self {
+        Self {
+            alpha_min,
+            alpha_max,
+            normal_lo: [-max_normal; 2],
+            normal_hi: [max_normal; 2],
+        }
+    }
 }
 
 /// A quadratic pull towards `centre`: adds `sum_k weight[k] * (x_k - centre_k)^2`.
@@ -133,7 +147,7 @@ impl Problem<'_> {
         }
         for k in 8..10 {
             x[k] = if x[k].is_finite() {
-                x[k].clamp(-b.max_normal, b.max_normal)
+                x[k].clamp(b.normal_lo[k - 8], b.normal_hi[k - 8])
             } else {
                 0.0
             };
@@ -253,12 +267,12 @@ impl Problem<'_> {
                 let at_low = match k {
                     0..=5 => x[k] <= 0.0,
                     6 | 7 => x[k] <= b.alpha_min,
-                    _ => x[k] <= -b.max_normal,
+                    _ => x[k] <= b.normal_lo[k - 8],
                 };
                 let at_high = match k {
                     0..=5 => false,
                     6 | 7 => x[k] >= b.alpha_max,
-                    _ => x[k] >= b.max_normal,
+                    _ => x[k] >= b.normal_hi[k - 8],
                 };
                 active[k] = !fr.free[k]
                     || (fr.isotropic && k == 7)
@@ -362,7 +376,8 @@ mod tests {
     const BOUNDS: Bounds = Bounds {
         alpha_min: 0.02,
         alpha_max: 1.0,
-        max_normal: 0.785,
+        normal_lo: [-0.785; 2],
+        normal_hi: [0.785; 2],
     };
 
     fn truth() -> BrdfParams {

@@ -32,11 +32,11 @@ pub struct Context<'a> {
 impl Context<'_> {
     /// Bounds of eq. (11) from the settings.
     pub fn bounds(&self) -> Bounds {
-        Bounds {
-            alpha_min: self.cfg.alpha_min,
-            alpha_max: self.cfg.alpha_max,
-            max_normal: self.cfg.max_normal_deg.to_radians(),
-        }
+        Bounds::symmetric(
+            self.cfg.alpha_min,
+            self.cfg.alpha_max,
+            self.cfg.max_normal_deg.to_radians(),
+        )
     }
 }
 

@@ -57,7 +57,7 @@ fn fit_writes_complete_self_describing_maps() {
     let enc = |f: &str| {
         png_text(&out.join("maps").join(f))
             .into_iter()
-            .find(|(k, _)| k == "encoding")
+            .find(|(k, _)| k == "svbrdf:encoding")
             .map(|(_, v)| v)
     };
     assert_eq!(enc("diffuse.png").as_deref(), Some("srgb"));
