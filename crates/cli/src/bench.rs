@@ -32,6 +32,9 @@ pub struct BenchArgs {
     /// as sRGB PNGs into this folder.
     #[arg(long, requires = "fit_capture")]
     fit_pictures: Option<std::path::PathBuf>,
+    /// Compare the maps of an existing `svbrdf fit` output folder with --truth.
+    #[arg(long, requires = "truth")]
+    fit_maps: Option<std::path::PathBuf>,
     /// Settings file for --fit-capture (JSON subset of `FitConfig`).
     #[arg(long, requires = "fit_capture")]
     fit_config: Option<std::path::PathBuf>,
@@ -371,6 +374,16 @@ fn holdout_picture(
 }
 
 pub fn run(a: &BenchArgs) -> Result<()> {
+    if let (Some(m), Some(t)) = (&a.fit_maps, &a.truth) {
+        let acc = maps_accuracy(m, t)?;
+        println!(
+            "{}",
+            json!({"bench": "maps_accuracy", "maps": m.display().to_string(), "accuracy": acc})
+        );
+        if a.no_brdf && a.fit_capture.is_none() && a.align_capture.is_none() {
+            return Ok(());
+        }
+    }
     if let (Some(c), Some(t)) = (&a.fit_capture, &a.truth) {
         for v in fit_accuracy(
             c,

@@ -20,13 +20,16 @@ pub struct FitConfig {
     pub light_intensity: Option<[f64; 3]>,
     /// Target of the intensity normalisation when the intensity is unknown.
     pub normalised_albedo: f64,
-    /// Channels whose linear value reaches this are clipped (the 8-bit video saturates
-    /// in flash highlights).
+    /// Channels whose linear value reaches this count as clipped. The 8-bit video
+    /// saturates in flash highlights and H.264 ringing pulls clipped areas a few code
+    /// values below 255, so the threshold sits well below 1 (0.9 linear is sRGB code
+    /// 243); measured on the simulator, 0.98 let ringing highlights through as exact
+    /// values and 0.8 censored too much.
     pub saturation: f64,
     /// Keep clipped channels as censored observations ("at least the saturation
-    /// value") instead of dropping the observation. Measured on the simulator: it
-    /// fixes the strength of clipped highlights but lets the specular colour of
-    /// clipped channels drift, for no net gain in relighting error; off by default.
+    /// value") instead of dropping the observation. Dropping them makes the pixels
+    /// whose highlight clipped look matte: on the simulator's brushed metal, censoring
+    /// lowers the held-out relighting error from about 120% to 40%.
     pub censor_clipped: bool,
     /// Observations within this many frame pixels of the image border are dropped.
     pub border_px: f64,
@@ -89,8 +92,8 @@ impl Default for FitConfig {
             px_per_cm: None,
             light_intensity: None,
             normalised_albedo: 0.8,
-            saturation: 0.98,
-            censor_clipped: false,
+            saturation: 0.9,
+            censor_clipped: true,
             border_px: 2.0,
             min_observations: 3,
             k_min: 2,
@@ -110,7 +113,7 @@ impl Default for FitConfig {
             refine: true,
             refine_prior: 2.0,
             refine_iterations: 6,
-            refine_max_normal_change_deg: 8.0,
+            refine_max_normal_change_deg: 3.0,
             strip_frames: 4,
         }
     }

@@ -178,6 +178,25 @@ pub struct FittedMaps {
     pub average: Vec<[f64; 3]>,
     /// RMS re-rendering error per pixel (linear radiance).
     pub residual: Vec<f32>,
+    /// The final clusters, indexed by the ids in `cluster`.
+    pub clusters: Vec<ClusterInfo>,
+}
+
+/// One final cluster as written to `clusters.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ClusterInfo {
+    /// Id (value in the cluster map).
+    pub id: u32,
+    /// Pixels (observed ones; filled pixels are not counted).
+    pub pixels: usize,
+    /// Split level (0: an initial k-means cluster).
+    pub depth: usize,
+    /// The cluster's BRDF (before per-pixel refinement).
+    pub params: BrdfParams,
+    /// RMS error over its raw observations, linear radiance.
+    pub rmse: f64,
+    /// Whether its solver converged before the iteration cap.
+    pub converged: bool,
 }
 
 /// How the light intensity was obtained.
@@ -232,6 +251,10 @@ pub struct FitSummary {
     /// Seconds per step.
     pub timings: Vec<(String, f64)>,
 }
+
+/// With an unknown intensity, the brightest initial cluster's `rho_d + rho_s` is kept
+/// at or below this.
+const ENERGY_MARGIN: f64 = 0.95;
 
 /// The light intensity: from the configuration, the capture, or normalised from the
 /// data (99th percentile of the per-pixel median of `pi L r^2 / cos(theta_i)` over
@@ -381,14 +404,8 @@ pub fn fit(
     cfg.validate()?;
     let mut timings = Vec::new();
     let t = Instant::now();
-    let (intensity, source) = light_intensity(obs, capture, cfg)?;
+    let (mut intensity, source) = light_intensity(obs, capture, cfg)?;
     let model = cfg.model.model();
-    let ctx = Context {
-        obs,
-        model,
-        intensity,
-        cfg,
-    };
     let npx = obs.pixels();
     let average = obs.mean_colors();
     let covered: Vec<bool> = (0..npx)
@@ -414,6 +431,36 @@ pub fn fit(
     for (&p, &l) in covered_px.iter().zip(&init.labels) {
         members[l as usize].push(p);
     }
+    if source == IntensitySource::Normalised {
+        // The percentile rule reads a shiny dark material (brushed metal) as bright,
+        // because highlight tails inflate its diffuse estimate; its specular albedo
+        // would then hit the rho_d + rho_s <= 1 bound and the fit would clip every
+        // highlight. Fit the initial clusters without that bound and raise the
+        // intensity until the brightest one fits under it with a margin.
+        let probe = Context {
+            obs,
+            model,
+            intensity,
+            cfg,
+        };
+        let peak = members
+            .par_iter()
+            .filter(|m| !m.is_empty())
+            .map(|m| {
+                let p = tree::initial_fit(&probe, m, false);
+                (0..3).map(|c| p.rho_d[c] + p.rho_s[c]).fold(0.0, f64::max)
+            })
+            .reduce(|| 0.0, f64::max);
+        if peak > ENERGY_MARGIN {
+            intensity = intensity.map(|v| v * peak / ENERGY_MARGIN);
+        }
+    }
+    let ctx = Context {
+        obs,
+        model,
+        intensity,
+        cfg,
+    };
     progress.finish();
     timings.push(("initial clusters".to_string(), t.elapsed().as_secs_f64()));
 
@@ -506,6 +553,18 @@ pub fn fit(
             coverage,
             average,
             residual,
+            clusters: leaves
+                .iter()
+                .enumerate()
+                .map(|(i, l)| ClusterInfo {
+                    id: i as u32,
+                    pixels: l.pixels.len(),
+                    depth: l.depth,
+                    params: l.params,
+                    rmse: (l.sse / (3 * l.observations.max(1)) as f64).sqrt(),
+                    converged: l.converged,
+                })
+                .collect(),
         },
         summary,
     ))

@@ -11,6 +11,7 @@
 //! OUT/maps/residual.exr   RMS re-rendering error per pixel, linear (+ .png, linear 16-bit, x10)
 //! OUT/maps/coverage.exr   observations per pixel (0: filled)      (+ .png, 8-bit, 0 black)
 //! OUT/rerender.png        observed frames (top) over their re-rendering (bottom), sRGB
+//! OUT/clusters.json       every final cluster: id, pixels, depth, BRDF, RMS error
 //! ```
 
 use std::path::Path;
@@ -329,6 +330,7 @@ pub fn write_outputs(
         rerender: "rerender.png".into(),
         summary: summary.clone(),
     };
+    svbrdf_core::fsutil::write_json(&dir.join("clusters.json"), &maps.clusters)?;
     svbrdf_core::fsutil::write_json(&dir.join(FIT_FILE), &manifest)?;
     Ok(manifest)
 }

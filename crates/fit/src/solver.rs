@@ -73,6 +73,9 @@ pub struct Bounds {
     pub normal_lo: [f64; 2],
     /// Upper bounds of the two normal angles, radians.
     pub normal_hi: [f64; 2],
+    /// Enforce `rho_d + rho_s <= 1` per channel (off only while the light intensity
+    /// is being normalised, when albedo units are not fixed yet).
+    pub energy: bool,
 }
 
 impl Bounds {
@@ -83,6 +86,7 @@ impl Bounds {
             alpha_max,
             normal_lo: [-max_normal; 2],
             normal_hi: [max_normal; 2],
+            energy: true,
         }
     }
 }
@@ -130,7 +134,7 @@ impl Problem<'_> {
         }
         for c in 0..3 {
             let s = x[c] + x[3 + c];
-            if s > 1.0 {
+            if b.energy && s > 1.0 {
                 x[c] /= s;
                 x[3 + c] /= s;
             }
@@ -378,6 +382,7 @@ mod tests {
         alpha_max: 1.0,
         normal_lo: [-0.785; 2],
         normal_hi: [0.785; 2],
+        energy: true,
     };
 
     fn truth() -> BrdfParams {

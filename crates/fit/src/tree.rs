@@ -213,6 +213,40 @@ pub fn initial_params(ctx: &Context, pixels: &[u32]) -> BrdfParams {
     }
 }
 
+/// The isotropic flat fit of an initial cluster alone (paper 3.2.1), optionally
+/// without the energy bound: used to fix albedo units when the intensity is unknown.
+pub fn initial_fit(ctx: &Context, pixels: &[u32], energy: bool) -> BrdfParams {
+    let samples = binned_samples(ctx, pixels);
+    let mut bounds = ctx.bounds();
+    bounds.energy = energy;
+    let prob = Problem {
+        model: ctx.model,
+        samples: &samples,
+        intensity: ctx.intensity,
+        bounds,
+    };
+    let start = initial_params(ctx, pixels);
+    starting_roughness(&start)
+        .iter()
+        .map(|init| prob.solve(init, &Freedom::ISOTROPIC_FLAT, None, ctx.cfg.max_iterations))
+        .min_by(|a, b| a.cost.total_cmp(&b.cost))
+        .map_or(start, |s| s.params)
+}
+
+/// The paper starts at alpha = 0.1; two more starting roughnesses cost little at the
+/// initial level (one fit per initial cluster) and avoid a local minimum on very shiny
+/// or very rough materials.
+fn starting_roughness(start: &BrdfParams) -> Vec<BrdfParams> {
+    [0.1, 0.04, 0.3]
+        .iter()
+        .map(|&a| BrdfParams {
+            alpha_x: a,
+            alpha_y: a,
+            ..*start
+        })
+        .collect()
+}
+
 struct Fitted {
     params: BrdfParams,
     errs: Vec<f64>,
@@ -311,18 +345,7 @@ fn node(ctx: &Context, pixels: Vec<u32>, f: Fitted, depth: usize) -> Vec<Leaf> {
 
 /// Fit one initial cluster and everything below it.
 pub fn fit_cluster(ctx: &Context, pixels: Vec<u32>) -> Vec<Leaf> {
-    let start = initial_params(ctx, &pixels);
-    // The paper starts at alpha = 0.1; two more starting roughnesses cost little at
-    // this level (one fit per initial cluster) and avoid a local minimum on very
-    // shiny or very rough materials.
-    let inits: Vec<BrdfParams> = [0.1, 0.04, 0.3]
-        .iter()
-        .map(|&a| BrdfParams {
-            alpha_x: a,
-            alpha_y: a,
-            ..start
-        })
-        .collect();
+    let inits = starting_roughness(&initial_params(ctx, &pixels));
     let f = fit(ctx, &pixels, &inits, &Freedom::ISOTROPIC_FLAT);
     node(ctx, pixels, f, 0)
 }
