@@ -124,14 +124,6 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
         s.rmse_final,
         100.0 * worst
     );
-    let t: Vec<String> = s
-        .timings
-        .iter()
-        .map(|(n, v)| format!("{n} {v:.1} s"))
-        .collect();
-    println!("timings: {}", t.join(", "));
-    if let Some(kb) = crate::bench::peak_memory_kb() {
-        println!("peak memory: {:.0} MB", kb as f64 / 1024.0);
-    }
+    crate::print_timings(&s.timings);
     Ok(run)
 }

@@ -198,15 +198,7 @@ fn run_align(a: &AlignArgs) -> Result<()> {
         "global solve: {} unknowns, residual rms {:.4} cm, median {:.4} cm",
         s.unknowns, s.solve_rms_cm, s.solve_median_cm
     );
-    let t: Vec<String> = s
-        .timings
-        .iter()
-        .map(|(n, v)| format!("{n} {v:.1} s"))
-        .collect();
-    println!("timings: {}", t.join(", "));
-    if let Some(kb) = bench::peak_memory_kb() {
-        println!("peak memory: {:.0} MB", kb as f64 / 1024.0);
-    }
+    print_timings(&s.timings);
     Ok(())
 }
 
@@ -259,13 +251,20 @@ fn run_synth(
     let progress = progress::Bars::new();
     let summary = synthesize(cfg, out, overwrite, &progress)
         .with_context(|| format!("synthesizing into {}", out.display()))?;
-    let t: Vec<String> = progress
-        .timings()
+    print_timings(&progress.timings());
+    Ok(summary)
+}
+
+/// Stage timings and the process's peak memory, one line each.
+pub fn print_timings(timings: &[(String, f64)]) {
+    let t: Vec<String> = timings
         .iter()
-        .map(|(n, s)| format!("{n} {s:.1} s"))
+        .map(|(n, v)| format!("{n} {v:.1} s"))
         .collect();
     println!("timings: {}", t.join(", "));
-    Ok(summary)
+    if let Some(kb) = bench::peak_memory_kb() {
+        println!("peak memory: {:.0} MB", kb as f64 / 1024.0);
+    }
 }
 
 /// The main job: synthesize a small capture, align it, and compare with ground truth.

@@ -79,6 +79,72 @@ fn plane(maps: &FittedMaps, f: impl Fn(usize) -> [f32; 3]) -> ImageF32 {
     img
 }
 
+/// How one map is written.
+struct MapSpec<'a> {
+    name: &'a str,
+    model: &'a str,
+    /// Encoding of the PNG (the EXR is always linear).
+    enc: Encoding,
+    depth: PngDepth,
+    meaning: &'a str,
+    /// The PNG holds the values times this (for maps whose range is not [0, 1]).
+    png_scale: f32,
+}
+
+/// Write `maps/NAME.exr` (linear) and `maps/NAME.png`, both with metadata, and list them.
+/// The normal map's PNG holds `(n + 1) / 2`.
+fn write_map(
+    dir: &Path,
+    files: &mut Vec<MapFile>,
+    m: MapSpec,
+    img: &ImageF32,
+) -> Result<(), FitError> {
+    let meta = |enc: Encoding| {
+        vec![
+            ("map", m.name.to_string()),
+            ("meaning", m.meaning.to_string()),
+            ("model", m.model.to_string()),
+            ("encoding", enc.as_str().to_string()),
+        ]
+    };
+    let exr = format!("maps/{}.exr", m.name);
+    write_exr(
+        &dir.join(&exr),
+        img,
+        &["R", "G", "B"],
+        &meta(Encoding::Linear),
+    )?;
+    let mut png_img = img.clone();
+    let shift = if m.name == "normal" { 1.0 } else { 0.0 };
+    let scale = if m.name == "normal" { 0.5 } else { m.png_scale };
+    png_img
+        .data
+        .iter_mut()
+        .for_each(|v| *v = (*v + shift) * scale);
+    let png = format!("maps/{}.png", m.name);
+    write_png(&dir.join(&png), &png_img, m.enc, m.depth, &meta(m.enc))?;
+    let scaled = if m.png_scale == 1.0 {
+        m.meaning.to_string()
+    } else {
+        format!("{}, multiplied by {}", m.meaning, m.png_scale)
+    };
+    files.push(MapFile {
+        file: exr,
+        encoding: Encoding::Linear,
+        meaning: m.meaning.to_string(),
+    });
+    files.push(MapFile {
+        file: png,
+        encoding: m.enc,
+        meaning: if m.name == "normal" {
+            format!("{}; stored as (n + 1) / 2", m.meaning)
+        } else {
+            scaled
+        },
+    });
+    Ok(())
+}
+
 /// Write the maps, the strip and the manifest into `dir` (which must exist).
 pub fn write_outputs(
     dir: &Path,
@@ -93,52 +159,24 @@ pub fn write_outputs(
         (n + 1) / 2 linearly"
         .to_string();
     let mut files = Vec::new();
-    let mut put = |name: &str,
-                   img: &ImageF32,
-                   png_enc: Encoding,
-                   depth: PngDepth,
-                   meaning: &str,
-                   png_scale: f32|
-     -> Result<(), FitError> {
-        let meta = vec![
-            ("map", name.to_string()),
-            ("meaning", meaning.to_string()),
-            ("model", summary.model.clone()),
-        ];
-        let exr = format!("maps/{name}.exr");
-        let mut m = meta.clone();
-        m.push(("encoding", "linear".into()));
-        write_exr(&dir.join(&exr), img, &["R", "G", "B"], &m)?;
-        let png = format!("maps/{name}.png");
-        let mut m = meta;
-        m.push(("encoding", png_enc.as_str().into()));
-        let scaled;
-        let src = if png_scale == 1.0 {
-            img
-        } else {
-            let mut s = img.clone();
-            s.data.iter_mut().for_each(|v| *v *= png_scale);
-            scaled = s;
-            &scaled
-        };
-        write_png(&dir.join(&png), src, png_enc, depth, &m)?;
-        files.push(MapFile {
-            file: exr,
-            encoding: Encoding::Linear,
-            meaning: meaning.to_string(),
-        });
-        files.push(MapFile {
-            file: png,
-            encoding: png_enc,
-            meaning: if png_scale == 1.0 {
-                meaning.to_string()
-            } else {
-                format!("{meaning}, multiplied by {png_scale}")
-            },
-        });
-        Ok(())
-    };
     let p = &maps.params;
+    let model = summary.model.as_str();
+    let mut put =
+        |name: &str, img: &ImageF32, enc: Encoding, depth: PngDepth, meaning: &str, scale: f32| {
+            write_map(
+                dir,
+                &mut files,
+                MapSpec {
+                    name,
+                    model,
+                    enc,
+                    depth,
+                    meaning,
+                    png_scale: scale,
+                },
+                img,
+            )
+        };
     put(
         "diffuse",
         &plane(maps, |i| p[i].rho_d.map(|v| v as f32)),
@@ -167,77 +205,14 @@ pub fn write_outputs(
         let n = p[i].normal();
         [n.x as f32, n.y as f32, n.z as f32]
     });
-    let normal_png = {
-        let mut s = normal.clone();
-        s.data.iter_mut().for_each(|v| *v = 0.5 * (*v + 1.0));
-        s
-    };
-    {
-        let meta = vec![
-            ("map", "normal".to_string()),
-            ("meaning", normal_convention.clone()),
-            ("encoding", "linear".to_string()),
-        ];
-        write_exr(&mdir.join("normal.exr"), &normal, &["R", "G", "B"], &meta)?;
-        write_png(
-            &mdir.join("normal.png"),
-            &normal_png,
-            Encoding::Linear,
-            PngDepth::Eight,
-            &meta,
-        )?;
-        files.push(MapFile {
-            file: "maps/normal.exr".into(),
-            encoding: Encoding::Linear,
-            meaning: "unit normal x, y, z in [-1, 1]".into(),
-        });
-        files.push(MapFile {
-            file: "maps/normal.png".into(),
-            encoding: Encoding::Linear,
-            meaning: "unit normal stored as (n + 1) / 2".into(),
-        });
-    }
-    let mut put = |name: &str,
-                   img: &ImageF32,
-                   enc: Encoding,
-                   depth: PngDepth,
-                   meaning: &str,
-                   scale: f32|
-     -> Result<(), FitError> {
-        let meta = vec![
-            ("map", name.to_string()),
-            ("meaning", meaning.to_string()),
-            ("encoding", enc.as_str().to_string()),
-        ];
-        write_exr(
-            &mdir.join(format!("{name}.exr")),
-            img,
-            &["R", "G", "B"],
-            &[
-                ("map", name.to_string()),
-                ("meaning", meaning.to_string()),
-                ("encoding", "linear".into()),
-            ],
-        )?;
-        let mut s = img.clone();
-        s.data.iter_mut().for_each(|v| *v *= scale);
-        write_png(&mdir.join(format!("{name}.png")), &s, enc, depth, &meta)?;
-        files.push(MapFile {
-            file: format!("maps/{name}.exr"),
-            encoding: Encoding::Linear,
-            meaning: meaning.to_string(),
-        });
-        files.push(MapFile {
-            file: format!("maps/{name}.png"),
-            encoding: enc,
-            meaning: if scale == 1.0 {
-                meaning.to_string()
-            } else {
-                format!("{meaning}, multiplied by {scale}")
-            },
-        });
-        Ok(())
-    };
+    put(
+        "normal",
+        &normal,
+        Encoding::Linear,
+        PngDepth::Eight,
+        &normal_convention,
+        1.0,
+    )?;
     put(
         "average",
         &plane(maps, |i| maps.average[i].map(|v| v as f32)),
