@@ -178,8 +178,8 @@ impl FitConfig {
                 "at least the minimum cluster size",
             );
         }
-        if !(self.bin_deg > 0.0 && self.bin_deg <= 45.0) {
-            return bad("angle bin", &self.bin_deg, "degrees in (0, 45]");
+        if !(self.bin_deg >= 3.0 && self.bin_deg <= 45.0) {
+            return bad("angle bin", &self.bin_deg, "degrees in [3, 45]");
         }
         if !(self.bin_cm > 0.0 && self.bin_cm <= 100.0) {
             return bad("distance bin", &self.bin_cm, "cm in (0, 100]");

@@ -154,24 +154,24 @@ impl Observations {
 
 /// The bin of the paper's section 3.2.2: 5-degree steps of the light and view polar and
 /// azimuth angles (about the flat normal) and 1 cm steps of the light distance, packed
-/// as `theta_i (6 bits) | phi_i (8) | theta_r (6) | phi_r (8) | r (4)`; distance and
-/// angle indices saturate at the top of their range.
+/// as `theta_i (5 bits) | phi_i (7) | theta_r (5) | phi_r (7) | r (8)`. Angle bins of
+/// at least 3 degrees fit (the configuration checks it); distances saturate at 255 bins.
 pub fn bin_key(lv: &LightView, bin_deg: f64, bin_cm: f64) -> u32 {
     let step = bin_deg.to_radians();
     let polar = |d: Vec3| {
         (d.z.clamp(-1.0, 1.0).acos() / step)
             .floor()
-            .clamp(0.0, 63.0) as u32
+            .clamp(0.0, 31.0) as u32
     };
     let azimuth = |d: Vec3| {
         let a = d.y.atan2(d.x) + std::f64::consts::PI;
-        (a / step).floor().clamp(0.0, 255.0) as u32
+        (a / step).floor().clamp(0.0, 127.0) as u32
     };
-    let r = (lv.light_dist2.sqrt() / bin_cm).floor().clamp(0.0, 15.0) as u32;
-    (polar(lv.light) << 26)
-        | (azimuth(lv.light) << 18)
-        | (polar(lv.view) << 12)
-        | (azimuth(lv.view) << 4)
+    let r = (lv.light_dist2.sqrt() / bin_cm).floor().clamp(0.0, 255.0) as u32;
+    (polar(lv.light) << 27)
+        | (azimuth(lv.light) << 20)
+        | (polar(lv.view) << 15)
+        | (azimuth(lv.view) << 8)
         | r
 }
 
@@ -390,6 +390,14 @@ mod tests {
         let a = bin_key(&lv(Vec3::new(0.1, 0.0, 1.0), Vec3::z(), 12.2), 5.0, 1.0);
         let b = bin_key(&lv(Vec3::new(0.1, 0.0, 1.0), Vec3::z(), 12.7), 5.0, 1.0);
         let c = bin_key(&lv(Vec3::new(0.1, 0.0, 1.0), Vec3::z(), 13.1), 5.0, 1.0);
+        // Distances well beyond 15 cm keep their own bins.
+        let far = bin_key(&lv(Vec3::new(0.1, 0.0, 1.0), Vec3::z(), 24.5), 5.0, 1.0);
+        let farther = bin_key(&lv(Vec3::new(0.1, 0.0, 1.0), Vec3::z(), 31.5), 5.0, 1.0);
+        assert_ne!(far, farther);
+        // Opposite azimuths and the widest angle bin differ.
+        let e = bin_key(&lv(Vec3::new(-0.1, 0.0, 1.0), Vec3::z(), 12.2), 3.0, 1.0);
+        let g = bin_key(&lv(Vec3::new(0.1, 0.0, 1.0), Vec3::z(), 12.2), 3.0, 1.0);
+        assert_ne!(e, g);
         let d = bin_key(&lv(Vec3::new(0.0, 0.1, 1.0), Vec3::z(), 12.2), 5.0, 1.0);
         assert_eq!(a, b);
         assert_ne!(a, c);
