@@ -112,7 +112,7 @@ impl Default for FitConfig {
             max_normal_deg: 45.0,
             refine: true,
             refine_prior: 2.0,
-            refine_iterations: 6,
+            refine_iterations: 3,
             refine_max_normal_change_deg: 3.0,
             strip_frames: 4,
         }

@@ -29,7 +29,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use svbrdf_core::brdf::{BrdfParams, N_PARAMS};
+use svbrdf_core::brdf::BrdfParams;
 use svbrdf_core::capture::RegisteredCapture;
 use svbrdf_core::plane::PlaneGrid;
 use svbrdf_core::progress::Progress;
@@ -38,7 +38,7 @@ use svbrdf_core::CoreError;
 pub use config::FitConfig;
 pub use observations::{ObservationBuilder, Observations};
 
-use crate::solver::{Freedom, Prior, Problem, Sample};
+use crate::solver::{Freedom, Problem, Sample};
 use crate::tree::Context;
 
 /// Errors of the appearance stage.
@@ -374,18 +374,10 @@ fn refine(ctx: &Context, params: &mut [BrdfParams], covered: &[bool]) {
                 intensity: ctx.intensity,
                 bounds,
             };
-            let info = prob.information(&x0, &Freedom::DIFFUSE_AND_NORMAL);
-            let n = samples.len() as f64;
-            let prior = Prior {
-                centre: x0,
-                weight: std::array::from_fn::<f64, N_PARAMS, _>(|k| {
-                    ctx.cfg.refine_prior * info[k].max(1e-12) / n
-                }),
-            };
-            let sol = prob.solve(
+            let sol = prob.solve_near(
                 p,
                 &Freedom::DIFFUSE_AND_NORMAL,
-                Some(&prior),
+                ctx.cfg.refine_prior,
                 ctx.cfg.refine_iterations,
             );
             if sol.params.is_physical() {

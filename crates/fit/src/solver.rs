@@ -224,10 +224,25 @@ impl Problem<'_> {
         (cost, jtj, jtr)
     }
 
-    /// Diagonal of J^T W J at `x` (the scale of each parameter's information).
-    pub fn information(&self, x: &[f64; N_PARAMS], fr: &Freedom) -> [f64; N_PARAMS] {
-        let (_, a, _) = self.linearise(x, fr);
-        std::array::from_fn(|k| a[(k, k)])
+    /// Fit from `init`, pulled towards `init` by a prior as strong as `strength`
+    /// average samples of each parameter: weight `strength * (J^T W J)_kk / n` from the
+    /// Jacobian at `init` (scale-free: no per-parameter tuning).
+    pub fn solve_near(
+        &self,
+        init: &BrdfParams,
+        fr: &Freedom,
+        strength: f64,
+        max_iterations: usize,
+    ) -> Solution {
+        let mut x = init.to_array();
+        self.project(&mut x, fr);
+        let first = self.linearise(&x, fr);
+        let n = self.samples.len().max(1) as f64;
+        let prior = Prior {
+            centre: x,
+            weight: std::array::from_fn(|k| strength * first.1[(k, k)].max(1e-12) / n),
+        };
+        self.solve_from(x, fr, Some(&prior), max_iterations, Some(first))
     }
 
     /// Fit from `init` with the given freedom, optional prior and iteration cap.
@@ -240,6 +255,17 @@ impl Problem<'_> {
     ) -> Solution {
         let mut x = init.to_array();
         self.project(&mut x, fr);
+        self.solve_from(x, fr, prior, max_iterations, None)
+    }
+
+    fn solve_from(
+        &self,
+        mut x: [f64; N_PARAMS],
+        fr: &Freedom,
+        prior: Option<&Prior>,
+        max_iterations: usize,
+        first: Option<(f64, Mat, Vector)>,
+    ) -> Solution {
         let prior_cost = |x: &[f64; N_PARAMS]| {
             prior.map_or(0.0, |p| {
                 (0..N_PARAMS)
@@ -247,8 +273,7 @@ impl Problem<'_> {
                     .sum()
             })
         };
-        let lin = |x: &[f64; N_PARAMS]| {
-            let (c, mut a, mut g) = self.linearise(x, fr);
+        let add_prior = |x: &[f64; N_PARAMS], (c, mut a, mut g): (f64, Mat, Vector)| {
             if let Some(p) = prior {
                 for k in 0..N_PARAMS {
                     a[(k, k)] += p.weight[k];
@@ -257,7 +282,11 @@ impl Problem<'_> {
             }
             (c, a, g)
         };
-        let (mut data_cost, mut jtj, mut jtr) = lin(&x);
+        let lin = |x: &[f64; N_PARAMS]| add_prior(x, self.linearise(x, fr));
+        let (mut data_cost, mut jtj, mut jtr) = match first {
+            Some(f) => add_prior(&x, f),
+            None => lin(&x),
+        };
         let mut total = data_cost + prior_cost(&x);
         let mut lambda = 1e-3;
         let mut iterations = 0;
