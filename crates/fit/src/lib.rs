@@ -561,3 +561,160 @@ pub fn fit(
         summary,
     ))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use svbrdf_core::brdf::{BrdfModel, LightView, Prepared, Ward};
+    use svbrdf_core::geometry::Vec3;
+    use svbrdf_core::plane::Region;
+    use svbrdf_core::progress::NoProgress;
+
+    /// Two materials (left half matte red, right half shiny blue) observed by a
+    /// flash camera sweeping over the plane; observations rendered exactly with Ward.
+    fn two_materials() -> (Observations, RegisteredCapture, [BrdfParams; 2]) {
+        let truth = [
+            BrdfParams {
+                rho_d: [0.6, 0.15, 0.1],
+                rho_s: [0.03; 3],
+                alpha_x: 0.3,
+                alpha_y: 0.3,
+                ..BrdfParams::default()
+            },
+            BrdfParams {
+                rho_d: [0.05, 0.1, 0.4],
+                rho_s: [0.3, 0.3, 0.3],
+                alpha_x: 0.12,
+                alpha_y: 0.2,
+                ..BrdfParams::default()
+            },
+        ];
+        let region = Region::centred(4.0, 4.0);
+        let grid = PlaneGrid::new(region, 10.0).unwrap();
+        let mut frames = Vec::new();
+        for i in 0..25 {
+            let (u, v) = ((i % 5) as f64 - 2.0, (i / 5) as f64 - 2.0);
+            let camera = Vec3::new(1.5 * u, 1.5 * v, 9.0 + 0.3 * i as f64 % 3.0);
+            frames.push(observations::FrameGeometry {
+                id: i,
+                camera,
+                light: camera + Vec3::new(1.4, -0.3, 0.0),
+            });
+        }
+        let npx = grid.len();
+        let mut start = vec![0usize];
+        let (mut frame, mut rgb, mut key) = (Vec::new(), Vec::new(), Vec::new());
+        for px in 0..npx {
+            let q = grid.pixel_centre(px % grid.width, px / grid.width);
+            let p = Prepared::new(truth[usize::from(q.x > 0.0)]);
+            for (k, f) in frames.iter().enumerate() {
+                let lv = LightView::from_points(Vec3::new(q.x, q.y, 0.0), f.light, f.camera);
+                let v = Ward.radiance(&p, &lv, 100.0);
+                if v.iter().any(|c| *c >= 0.9) {
+                    continue;
+                }
+                frame.push(k as u16);
+                rgb.push(v.map(|c| (c * observations::RGB_SCALE).round() as u16));
+                key.push(observations::bin_key(&lv, 5.0, 1.0));
+            }
+            start.push(frame.len());
+        }
+        let obs = Observations {
+            grid,
+            frames,
+            start,
+            frame,
+            rgb,
+            key,
+            clipped: 0,
+            saturation: 0.9,
+        };
+        let mut cap = RegisteredCapture::new("test", region, 10.0);
+        cap.light_intensity = Some([100.0; 3]);
+        (obs, cap, truth)
+    }
+
+    #[test]
+    fn recovers_two_materials_and_respects_the_minimum_cluster_size() {
+        let (obs, cap, truth) = two_materials();
+        let cfg = FitConfig {
+            refine: false,
+            ..FitConfig::default()
+        };
+        let (maps, summary) = fit(&obs, &cap, &cfg, &NoProgress).unwrap();
+        // Average colour varies inside each material (falloff, highlights), so the
+        // elbow may pick more than two clusters, but no cluster mixes the materials.
+        assert!(summary.initial_clusters >= 2, "{:?}", summary.kmeans_sse);
+        let mut side = vec![[false; 2]; maps.clusters.len()];
+        for (px, c) in maps.cluster.iter().enumerate() {
+            side[*c as usize][usize::from(px % 40 >= 20)] = true;
+        }
+        assert!(
+            side.iter().all(|s| !(s[0] && s[1])),
+            "a cluster mixes both materials"
+        );
+        assert!(maps.clusters.iter().all(|c| c.pixels >= cfg.min_cluster_px));
+        // Exact data: the fit reproduces it almost exactly...
+        assert!(
+            summary.rmse_clusters < 2e-3,
+            "rmse {}",
+            summary.rmse_clusters
+        );
+        // ...and finds each material's parameters.
+        for (px, t) in [(5 * 40 + 5, truth[0]), (30 * 40 + 35, truth[1])] {
+            let p = maps.params[px];
+            for c in 0..3 {
+                assert!((p.rho_d[c] - t.rho_d[c]).abs() < 0.01, "{p:?} vs {t:?}");
+                assert!((p.rho_s[c] - t.rho_s[c]).abs() < 0.03, "{p:?} vs {t:?}");
+            }
+            assert!((p.alpha_x - t.alpha_x).abs() < 0.03, "{p:?} vs {t:?}");
+            assert!((p.alpha_y - t.alpha_y).abs() < 0.03, "{p:?} vs {t:?}");
+            assert!(p.normal().z > 0.999);
+        }
+        assert!(maps.params.iter().all(BrdfParams::is_physical));
+    }
+
+    #[test]
+    fn refinement_recovers_a_per_pixel_albedo_step_inside_a_cluster() {
+        let (mut obs, cap, _) = two_materials();
+        // Darken one pixel of the matte half by 20%: too small to be its own cluster.
+        let px = 12 * 40 + 8;
+        for o in obs.range(px) {
+            obs.rgb[o] = obs.rgb[o].map(|v| (f64::from(v) * 0.8) as u16);
+        }
+        let cfg = FitConfig::default();
+        let (maps, _) = fit(&obs, &cap, &cfg, &NoProgress).unwrap();
+        let ratio = maps.params[px].rho_d[0] / maps.params[px + 1].rho_d[0];
+        assert!((ratio - 0.8).abs() < 0.05, "ratio {ratio}");
+    }
+
+    #[test]
+    fn unobserved_pixels_get_a_neighbours_cluster_and_no_nan() {
+        let (mut obs, cap, _) = two_materials();
+        // Remove every observation of a 3x3 block.
+        let mut keep = vec![true; obs.len()];
+        for y in 10..13 {
+            for x in 10..13 {
+                for o in obs.range(y * 40 + x) {
+                    keep[o] = false;
+                }
+            }
+        }
+        let mut start = vec![0];
+        let (mut f, mut r, mut k) = (Vec::new(), Vec::new(), Vec::new());
+        for px in 0..obs.pixels() {
+            for o in obs.range(px).filter(|o| keep[*o]) {
+                f.push(obs.frame[o]);
+                r.push(obs.rgb[o]);
+                k.push(obs.key[o]);
+            }
+            start.push(f.len());
+        }
+        (obs.start, obs.frame, obs.rgb, obs.key) = (start, f, r, k);
+        let (maps, summary) = fit(&obs, &cap, &FitConfig::default(), &NoProgress).unwrap();
+        assert_eq!(summary.covered_pixels, 40 * 40 - 9);
+        assert_eq!(maps.coverage[11 * 40 + 11], 0);
+        assert_eq!(maps.cluster[11 * 40 + 11], maps.cluster[11 * 40 + 9]);
+        assert!(maps.params.iter().all(BrdfParams::is_physical));
+    }
+}
