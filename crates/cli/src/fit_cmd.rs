@@ -6,7 +6,7 @@ use anyhow::Result;
 use clap::Args;
 use svbrdf_core::brdf::ModelKind;
 use svbrdf_core::capture::RegisteredCapture;
-use svbrdf_core::image::ImageF32;
+use svbrdf_core::image::FrameImage;
 use svbrdf_fit::{FitConfig, FitError, FrameSource};
 
 #[derive(Args, Clone)]
@@ -83,7 +83,7 @@ impl FrameSource for CvFrames {
         &self,
         capture: &RegisteredCapture,
         dir: &Path,
-        sink: &mut dyn FnMut(usize, ImageF32) -> Result<(), FitError>,
+        sink: &mut dyn FnMut(usize, FrameImage) -> Result<(), FitError>,
     ) -> Result<(), FitError> {
         svbrdf_cv::capture::decode_frames::<anyhow::Error>(capture, dir, &mut |k, img| {
             sink(k, img).map_err(anyhow::Error::from)

@@ -106,3 +106,53 @@ mod tests {
         assert!(o[0].is_finite());
     }
 }
+
+/// A decoded frame as the appearance stage receives it: 8-bit sRGB straight from a
+/// video decoder (linearised per sample, so a 4K frame never exists as 100 MB of
+/// floats), or already-linear floats (EXR, 16-bit PNG).
+#[derive(Debug, Clone)]
+pub enum FrameImage {
+    /// 8-bit values with the sRGB transfer curve, RGB.
+    Srgb8(ImageU8),
+    /// Linear floats, RGB.
+    Linear(ImageF32),
+}
+
+impl FrameImage {
+    /// (width, height, channels).
+    pub fn shape(&self) -> (usize, usize, usize) {
+        match self {
+            Self::Srgb8(i) => (i.width, i.height, i.channels),
+            Self::Linear(i) => (i.width, i.height, i.channels),
+        }
+    }
+
+    /// Bilinear sample of linear RGB at continuous pixel coordinates (centres at
+    /// integers), clamped at the border. `lut` maps 8-bit sRGB codes to linear values
+    /// (see [`crate::color::srgb8_to_linear_table`]); interpolation happens after
+    /// linearisation, as the physics requires.
+    pub fn sample_linear(&self, x: f64, y: f64, lut: &[f32; 256], out: &mut [f32; 3]) {
+        match self {
+            Self::Linear(i) => i.sample_bilinear(x, y, out),
+            Self::Srgb8(i) => {
+                let xm = (i.width as f64 - 1.0).max(0.0);
+                let ym = (i.height as f64 - 1.0).max(0.0);
+                let x = if x.is_finite() { x.clamp(0.0, xm) } else { 0.0 };
+                let y = if y.is_finite() { y.clamp(0.0, ym) } else { 0.0 };
+                let (x0, y0) = (x.floor() as usize, y.floor() as usize);
+                let x1 = (x0 + 1).min(i.width - 1);
+                let y1 = (y0 + 1).min(i.height - 1);
+                let fx = (x - x0 as f64) as f32;
+                let fy = (y - y0 as f64) as f32;
+                let (a, b, c, d) = (i.pixel(x0, y0), i.pixel(x1, y0), i.pixel(x0, y1), i.pixel(x1, y1));
+                for k in 0..3 {
+                    let (a, b) = (lut[usize::from(a[k])], lut[usize::from(b[k])]);
+                    let (c, d) = (lut[usize::from(c[k])], lut[usize::from(d[k])]);
+                    let top = a + (b - a) * fx;
+                    let bot = c + (d - c) * fx;
+                    out[k] = top + (bot - top) * fy;
+                }
+            }
+        }
+    }
+}

@@ -65,7 +65,7 @@ pub trait FrameSource {
         &self,
         capture: &RegisteredCapture,
         dir: &std::path::Path,
-        sink: &mut dyn FnMut(usize, svbrdf_core::image::ImageF32) -> Result<(), FitError>,
+        sink: &mut dyn FnMut(usize, svbrdf_core::image::FrameImage) -> Result<(), FitError>,
     ) -> Result<(), FitError>;
 }
 
@@ -110,8 +110,11 @@ pub fn run(
     let t = Instant::now();
     progress.stage("observations", capture.frames.len() as u64);
     let mut builder = ObservationBuilder::new(&capture, grid, cfg)?;
+    let mut sampling = 0.0;
     source.decode(&capture, &dir, &mut |k, img| {
+        let t = Instant::now();
         builder.add_frame(k, &img)?;
+        sampling += t.elapsed().as_secs_f64();
         progress.advance(1);
         Ok(())
     })?;
@@ -119,7 +122,13 @@ pub fn run(
     progress.finish();
     let t_obs = t.elapsed().as_secs_f64();
     let (maps, mut summary) = fit(&obs, &capture, cfg, progress)?;
-    summary.timings.insert(0, ("observations".into(), t_obs));
+    summary
+        .timings
+        .insert(0, ("observations: sampling frames".into(), sampling));
+    summary.timings.insert(
+        0,
+        ("observations: decoding frames".into(), t_obs - sampling),
+    );
     let nf = obs.frames.len();
     let n = cfg.strip_frames.clamp(1, nf);
     let chosen: Vec<usize> = (0..n)

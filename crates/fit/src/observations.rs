@@ -12,7 +12,8 @@ use rayon::prelude::*;
 use svbrdf_core::brdf::LightView;
 use svbrdf_core::capture::{PreparedMapping, RegisteredCapture};
 use svbrdf_core::geometry::{Vec2, Vec3};
-use svbrdf_core::image::ImageF32;
+use svbrdf_core::color::srgb8_to_linear_table;
+use svbrdf_core::image::FrameImage;
 use svbrdf_core::plane::PlaneGrid;
 
 use crate::config::FitConfig;
@@ -188,6 +189,7 @@ pub struct ObservationBuilder {
     saturated: Vec<u64>,
     saturation: f32,
     censor: bool,
+    lut: [f32; 256],
     border: f64,
     bin_deg: f64,
     bin_cm: f64,
@@ -228,6 +230,7 @@ impl ObservationBuilder {
             saturated: vec![0; capture.frames.len()],
             saturation: cfg.saturation as f32,
             censor: cfg.censor_clipped,
+            lut: srgb8_to_linear_table(),
             border: cfg.border_px,
             bin_deg: cfg.bin_deg,
             bin_cm: cfg.bin_cm,
@@ -267,12 +270,13 @@ impl ObservationBuilder {
     }
 
     /// Add frame `k` of the capture (index into `capture.frames`), decoded to linear RGB.
-    pub fn add_frame(&mut self, k: usize, img: &ImageF32) -> Result<(), FitError> {
+    pub fn add_frame(&mut self, k: usize, img: &FrameImage) -> Result<(), FitError> {
         let (w, h) = self.sizes[k];
-        if img.width != w as usize || img.height != h as usize || img.channels != 3 {
+        let (iw, ih, ic) = img.shape();
+        if iw != w as usize || ih != h as usize || ic != 3 {
             return Err(FitError::invalid(
                 format!("frame {} image size", self.frames[k].id),
-                format!("{}x{}x{}", img.width, img.height, img.channels),
+                format!("{iw}x{ih}x{ic}"),
                 format!("{w}x{h} RGB as the capture says"),
             ));
         }
@@ -288,6 +292,7 @@ impl ObservationBuilder {
         );
         let (border, sat, bd, bc) = (self.border, self.saturation, self.bin_deg, self.bin_cm);
         let censor = self.censor;
+        let lut = &self.lut;
         let rows: Vec<(FrameObs, u64)> = (r0..r1)
             .into_par_iter()
             .map(|r| {
@@ -302,7 +307,7 @@ impl ObservationBuilder {
                     if !(p.x >= border && p.y >= border && p.x <= xmax && p.y <= ymax) {
                         continue;
                     }
-                    img.sample_bilinear(p.x, p.y, &mut c);
+                    img.sample_linear(p.x, p.y, lut, &mut c);
                     if !c.iter().all(|v| v.is_finite()) {
                         continue;
                     }
