@@ -64,6 +64,9 @@ pub struct FitConfig {
     pub bin_cm: f64,
     /// Levenberg-Marquardt iterations per cluster fit.
     pub max_iterations: usize,
+    /// Levenberg-Marquardt stops when an accepted step lowers the cost by less than
+    /// this fraction.
+    pub tolerance: f64,
     /// Smallest roughness alpha.
     pub alpha_min: f64,
     /// Largest roughness alpha.
@@ -107,6 +110,7 @@ impl Default for FitConfig {
             bin_deg: 5.0,
             bin_cm: 1.0,
             max_iterations: 60,
+            tolerance: 1e-4,
             alpha_min: 0.02,
             alpha_max: 1.0,
             max_normal_deg: 45.0,
@@ -183,6 +187,9 @@ impl FitConfig {
         }
         if !(self.bin_cm > 0.0 && self.bin_cm <= 100.0) {
             return bad("distance bin", &self.bin_cm, "cm in (0, 100]");
+        }
+        if !(self.tolerance > 0.0 && self.tolerance < 0.1) {
+            return bad("solver tolerance", &self.tolerance, "a fraction in (0, 0.1)");
         }
         if self.max_iterations == 0 {
             return bad("iterations", &self.max_iterations, ">= 1");

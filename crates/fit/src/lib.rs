@@ -382,6 +382,7 @@ fn refine(ctx: &Context, params: &mut [BrdfParams], covered: &[bool]) {
                 samples: &samples,
                 intensity: ctx.intensity,
                 bounds,
+                tolerance: ctx.cfg.tolerance,
             };
             let sol = prob.solve_near(
                 p,

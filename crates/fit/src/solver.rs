@@ -123,6 +123,8 @@ pub struct Problem<'a> {
     pub intensity: [f64; 3],
     /// Bounds.
     pub bounds: Bounds,
+    /// Stop when an accepted step lowers the cost by less than this fraction.
+    pub tolerance: f64,
 }
 
 impl Problem<'_> {
@@ -349,7 +351,7 @@ impl Problem<'_> {
                 lambda = (lambda / 3.0).max(1e-9);
                 (data_cost, jtj, jtr) = lin(&x);
                 total = data_cost + prior_cost(&x);
-                if rel < 1e-7 {
+                if rel < self.tolerance {
                     converged = true;
                     break;
                 }
@@ -434,6 +436,7 @@ mod tests {
             samples: &s,
             intensity: [300.0; 3],
             bounds: BOUNDS,
+            tolerance: 1e-9,
         };
         // Isotropic flat fit first, then full, as in the paper.
         let init = BrdfParams {
@@ -465,6 +468,7 @@ mod tests {
             samples: &s,
             intensity: [300.0; 3],
             bounds: BOUNDS,
+            tolerance: 1e-9,
         };
         let init = BrdfParams {
             alpha_x: 0.2,
@@ -495,6 +499,7 @@ mod tests {
             samples: &s,
             intensity: [300.0; 3],
             bounds: BOUNDS,
+            tolerance: 1e-9,
         };
         let sol = prob.solve(&BrdfParams::default(), &Freedom::FULL, None, 100);
         assert!(sol.params.is_physical(), "{:?}", sol.params);
@@ -513,6 +518,7 @@ mod tests {
             samples: &s,
             intensity: [300.0; 3],
             bounds: BOUNDS,
+            tolerance: 1e-9,
         };
         let centre = BrdfParams {
             rho_d: [0.2; 3],

@@ -224,6 +224,7 @@ pub fn initial_fit(ctx: &Context, pixels: &[u32], energy: bool) -> BrdfParams {
         samples: &samples,
         intensity: ctx.intensity,
         bounds,
+        tolerance: ctx.cfg.tolerance,
     };
     let start = initial_params(ctx, pixels);
     starting_roughness(&start)
@@ -262,6 +263,7 @@ fn fit(ctx: &Context, pixels: &[u32], inits: &[BrdfParams], fr: &Freedom) -> Fit
         samples: &samples,
         intensity: ctx.intensity,
         bounds: ctx.bounds(),
+        tolerance: ctx.cfg.tolerance,
     };
     let best = inits
         .iter()
