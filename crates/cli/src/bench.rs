@@ -300,6 +300,19 @@ pub fn fit_accuracy(
         );
         if let Some(dir) = pictures {
             std::fs::create_dir_all(dir)?;
+            let mut diffuse = svbrdf_core::image::ImageF32::new(grid.width, grid.height, 3);
+            for (px, p) in diffuse.data.chunks_exact_mut(3).zip(&maps.params) {
+                for c in 0..3 {
+                    px[c] = (acc.albedo_scale * p.rho_d[c]) as f32;
+                }
+            }
+            svbrdf_core::maps::write_png(
+                &dir.join(format!("diffuse_refine_{refine}.png")),
+                &holdout_picture(&grid, &diffuse, &truth.grid, &truth.diffuse),
+                svbrdf_core::maps::Encoding::Srgb,
+                svbrdf_core::maps::PngDepth::Eight,
+                &[("meaning", "diffuse albedo: truth | fit x global scale | 4 x |difference|, linear".into())],
+            )?;
             for (k, (img, light, camera)) in truth.holdout.iter().enumerate() {
                 let ours = svbrdf_fit::render::relight(
                     &grid,

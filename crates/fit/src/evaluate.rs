@@ -34,6 +34,9 @@ pub struct Accuracy {
     pub albedo_scale: f64,
     /// Diffuse albedo RMSE after scaling, over pixels and channels.
     pub diffuse_rmse: f64,
+    /// The same after averaging both maps over 1 mm blocks (what remains is not
+    /// pixel-scale texture or noise).
+    pub diffuse_rmse_1mm: f64,
     /// Mean normal angle error, degrees.
     pub normal_mean_deg: f64,
     /// Median normal angle error, degrees.
@@ -50,6 +53,18 @@ pub struct Accuracy {
     /// errors of the reflectance model (which survive averaging) from pixel-scale
     /// texture and noise (which do not).
     pub relight_relative_rmse_1mm: Vec<f64>,
+}
+
+/// RMS difference of block means, from per-block sums `[ours r g b, truth r g b, n]`.
+fn block_rmse(blocks: &[[f64; 7]]) -> f64 {
+    let (mut se, mut n) = (0.0, 0.0);
+    for b in blocks.iter().filter(|b| b[6] > 0.0) {
+        for c in 0..3 {
+            se += ((b[c] - b[3 + c]) / b[6]).powi(2);
+        }
+        n += 3.0;
+    }
+    (se / f64::max(n, 1.0)).sqrt()
 }
 
 fn sample(img: &ImageF32, grid: &PlaneGrid, q: Vec2) -> [f64; 3] {
@@ -92,11 +107,18 @@ pub fn evaluate(
         }
     }
     let scale = if ff > 0.0 { ft / ff } else { 1.0 };
+    let block = (0.1 * grid.px_per_cm).round().max(1.0) as usize;
+    let (bw, bh) = (grid.width.div_ceil(block), grid.height.div_ceil(block));
+    let mut dblocks = vec![[0.0f64; 7]; bw * bh];
     let mut se = 0.0;
     let mut angles = Vec::with_capacity(idx.len());
     for &(i, q) in &idx {
         let t = sample(&truth.diffuse, &truth.grid, q);
+        let b = (i / grid.width / block) * bw + (i % grid.width) / block;
+        dblocks[b][6] += 1.0;
         for c in 0..3 {
+            dblocks[b][c] += scale * params[i].rho_d[c];
+            dblocks[b][3 + c] += t[c];
             se += (scale * params[i].rho_d[c] - t[c]).powi(2);
         }
         let tn = sample(&truth.normal, &truth.grid, q);
@@ -138,17 +160,10 @@ pub fn evaluate(
             blocks[b][6] += 1.0;
         }
         let mean = sum / (3.0 * n);
-        let (mut bse, mut bn) = (0.0, 0.0);
-        for b in blocks.iter().filter(|b| b[6] > 0.0) {
-            for c in 0..3 {
-                bse += ((b[c] - b[3 + c]) / b[6]).powi(2);
-            }
-            bn += 3.0;
-        }
         if mean > 0.0 {
             relight_relative_rmse.push((se / (3.0 * n)).sqrt() / mean);
             relight_mean_ratio.push(sum_ours / sum);
-            relight_relative_rmse_1mm.push((bse / f64::max(bn, 1.0)).sqrt() / mean);
+            relight_relative_rmse_1mm.push(block_rmse(&blocks) / mean);
         } else {
             relight_relative_rmse.push(0.0);
             relight_mean_ratio.push(0.0);
@@ -161,6 +176,7 @@ pub fn evaluate(
         pixels: idx.len(),
         albedo_scale: scale,
         diffuse_rmse: (se / (3.0 * n)).sqrt(),
+        diffuse_rmse_1mm: block_rmse(&dblocks),
         normal_mean_deg,
         normal_median_deg,
         relight_relative_rmse,
