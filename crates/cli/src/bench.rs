@@ -311,7 +311,10 @@ pub fn fit_accuracy(
                 &holdout_picture(&grid, &diffuse, &truth.grid, &truth.diffuse),
                 svbrdf_core::maps::Encoding::Srgb,
                 svbrdf_core::maps::PngDepth::Eight,
-                &[("meaning", "diffuse albedo: truth | fit x global scale | 4 x |difference|, linear".into())],
+                &[(
+                    "meaning",
+                    "diffuse albedo: truth | fit x global scale | 4 x |difference|, linear".into(),
+                )],
             )?;
             for (k, (img, light, camera)) in truth.holdout.iter().enumerate() {
                 let ours = svbrdf_fit::render::relight(

@@ -144,7 +144,12 @@ impl FrameImage {
                 let y1 = (y0 + 1).min(i.height - 1);
                 let fx = (x - x0 as f64) as f32;
                 let fy = (y - y0 as f64) as f32;
-                let (a, b, c, d) = (i.pixel(x0, y0), i.pixel(x1, y0), i.pixel(x0, y1), i.pixel(x1, y1));
+                let (a, b, c, d) = (
+                    i.pixel(x0, y0),
+                    i.pixel(x1, y0),
+                    i.pixel(x0, y1),
+                    i.pixel(x1, y1),
+                );
                 for k in 0..3 {
                     let (a, b) = (lut[usize::from(a[k])], lut[usize::from(b[k])]);
                     let (c, d) = (lut[usize::from(c[k])], lut[usize::from(d[k])]);

@@ -98,12 +98,11 @@ pub fn decode_frames<E: From<CvError>>(
                 for k in frames {
                     let name = capture.frames[k].image.clone().unwrap_or_default();
                     let file = path.join(&name);
-                    let img = read_image_linear(&file, source.encoding).map_err(|e| {
-                        CvError::File {
+                    let img =
+                        read_image_linear(&file, source.encoding).map_err(|e| CvError::File {
                             path: file.clone(),
                             message: e.to_string(),
-                        }
-                    })?;
+                        })?;
                     sink(k, FrameImage::Linear(img))?;
                 }
             }

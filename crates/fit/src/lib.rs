@@ -384,12 +384,12 @@ fn refine(ctx: &Context, params: &mut [BrdfParams], covered: &[bool]) {
                 bounds,
                 tolerance: ctx.cfg.tolerance,
             };
-            let sol = prob.solve_near(
-                p,
-                &Freedom::DIFFUSE_AND_NORMAL,
-                ctx.cfg.refine_prior,
-                ctx.cfg.refine_iterations,
-            );
+            let freedom = if ctx.cfg.refine_specular {
+                Freedom::ALBEDOS_AND_NORMAL
+            } else {
+                Freedom::DIFFUSE_AND_NORMAL
+            };
+            let sol = prob.solve_near(p, &freedom, ctx.cfg.refine_prior, ctx.cfg.refine_iterations);
             if sol.params.is_physical() {
                 *p = sol.params;
             }

@@ -11,8 +11,8 @@
 use rayon::prelude::*;
 use svbrdf_core::brdf::LightView;
 use svbrdf_core::capture::{PreparedMapping, RegisteredCapture};
-use svbrdf_core::geometry::{Vec2, Vec3};
 use svbrdf_core::color::srgb8_to_linear_table;
+use svbrdf_core::geometry::{Vec2, Vec3};
 use svbrdf_core::image::FrameImage;
 use svbrdf_core::plane::PlaneGrid;
 
@@ -191,7 +191,9 @@ pub fn fast_atan2(y: f64, x: f64) -> f64 {
     }
     let t = lo / hi;
     let t2 = t * t;
-    let mut a = t * (0.999_866 + t2 * (-0.330_299_5 + t2 * (0.180_141 + t2 * (-0.085_133 + t2 * 0.020_835_1))));
+    let mut a = t
+        * (0.999_866
+            + t2 * (-0.330_299_5 + t2 * (0.180_141 + t2 * (-0.085_133 + t2 * 0.020_835_1))));
     if ay > ax {
         a = FRAC_PI_2 - a;
     }
