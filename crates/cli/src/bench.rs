@@ -302,8 +302,8 @@ pub fn fit_accuracy(
             std::fs::create_dir_all(dir)?;
             let mut diffuse = svbrdf_core::image::ImageF32::new(grid.width, grid.height, 3);
             for (px, p) in diffuse.data.chunks_exact_mut(3).zip(&maps.params) {
-                for c in 0..3 {
-                    px[c] = (acc.albedo_scale * p.rho_d[c]) as f32;
+                for (v, d) in px.iter_mut().zip(p.rho_d) {
+                    *v = (acc.albedo_scale * d) as f32;
                 }
             }
             svbrdf_core::maps::write_png(
