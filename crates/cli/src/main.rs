@@ -363,6 +363,21 @@ fn print_summary(s: &svbrdf_synth::SynthSummary) {
 }
 
 fn main() -> ExitCode {
+    // `svbrdf bench | head -1` closes our stdout early; Rust then panics inside
+    // `println!`. End quietly with the shell's broken-pipe status instead.
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        let payload = info.payload();
+        let msg = payload
+            .downcast_ref::<String>()
+            .map(String::as_str)
+            .or_else(|| payload.downcast_ref::<&str>().copied())
+            .unwrap_or("");
+        if msg.contains("failed printing to stdout") && msg.contains("Broken pipe") {
+            std::process::exit(141);
+        }
+        default_hook(info);
+    }));
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Synth(a) => synth_config(&a)
