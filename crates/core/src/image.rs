@@ -60,20 +60,38 @@ impl<T: Copy + Default> Image<T> {
     }
 }
 
+/// The four taps of a bilinear sample at continuous pixel coordinates (centres at
+/// integers), clamped at the border: `(x0, y0, x1, y1, fx, fy)`. Non-finite
+/// coordinates read pixel 0.
+fn bilinear_taps(
+    width: usize,
+    height: usize,
+    x: f64,
+    y: f64,
+) -> (usize, usize, usize, usize, f32, f32) {
+    let xm = (width as f64 - 1.0).max(0.0);
+    let ym = (height as f64 - 1.0).max(0.0);
+    let x = if x.is_finite() { x.clamp(0.0, xm) } else { 0.0 };
+    let y = if y.is_finite() { y.clamp(0.0, ym) } else { 0.0 };
+    let x0 = x.floor() as usize;
+    let y0 = y.floor() as usize;
+    let x1 = (x0 + 1).min(width.saturating_sub(1));
+    let y1 = (y0 + 1).min(height.saturating_sub(1));
+    (
+        x0,
+        y0,
+        x1,
+        y1,
+        (x - x0 as f64) as f32,
+        (y - y0 as f64) as f32,
+    )
+}
+
 impl ImageF32 {
     /// Bilinear sample at continuous pixel coordinates (centres at integers), clamped at
     /// the border. Writes `channels` values into `out`.
     pub fn sample_bilinear(&self, x: f64, y: f64, out: &mut [f32]) {
-        let xm = (self.width as f64 - 1.0).max(0.0);
-        let ym = (self.height as f64 - 1.0).max(0.0);
-        let x = if x.is_finite() { x.clamp(0.0, xm) } else { 0.0 };
-        let y = if y.is_finite() { y.clamp(0.0, ym) } else { 0.0 };
-        let x0 = x.floor() as usize;
-        let y0 = y.floor() as usize;
-        let x1 = (x0 + 1).min(self.width - 1);
-        let y1 = (y0 + 1).min(self.height - 1);
-        let fx = (x - x0 as f64) as f32;
-        let fy = (y - y0 as f64) as f32;
+        let (x0, y0, x1, y1, fx, fy) = bilinear_taps(self.width, self.height, x, y);
         let (a, b, c, d) = (
             self.pixel(x0, y0),
             self.pixel(x1, y0),
@@ -91,6 +109,31 @@ impl ImageF32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn srgb8_frames_interpolate_after_linearising() {
+        let lut = crate::color::srgb8_to_linear_table();
+        let u8img = ImageU8::from_vec(2, 1, 3, vec![0, 0, 0, 255, 128, 10]).unwrap();
+        let lin = ImageF32::from_vec(
+            2,
+            1,
+            3,
+            u8img.data.iter().map(|&v| lut[usize::from(v)]).collect(),
+        )
+        .unwrap();
+        let (a, b) = (FrameImage::Srgb8(u8img), FrameImage::Linear(lin));
+        for x in [-1.0, 0.0, 0.25, 0.5, 1.0, 7.0] {
+            let (mut p, mut q) = ([0f32; 3], [0f32; 3]);
+            a.sample_linear(x, 0.3, &lut, &mut p);
+            b.sample_linear(x, 0.3, &lut, &mut q);
+            assert_eq!(p, q);
+        }
+        // Halfway between black and white is linear 0.5, not sRGB code 128.
+        let mut p = [0f32; 3];
+        a.sample_linear(0.5, 0.0, &lut, &mut p);
+        assert!((p[0] - 0.5).abs() < 1e-6);
+        assert_eq!(a.shape(), (2, 1, 3));
+    }
 
     #[test]
     fn bilinear_hits_pixel_centres_and_midpoints() {
@@ -135,15 +178,7 @@ impl FrameImage {
         match self {
             Self::Linear(i) => i.sample_bilinear(x, y, out),
             Self::Srgb8(i) => {
-                let xm = (i.width as f64 - 1.0).max(0.0);
-                let ym = (i.height as f64 - 1.0).max(0.0);
-                let x = if x.is_finite() { x.clamp(0.0, xm) } else { 0.0 };
-                let y = if y.is_finite() { y.clamp(0.0, ym) } else { 0.0 };
-                let (x0, y0) = (x.floor() as usize, y.floor() as usize);
-                let x1 = (x0 + 1).min(i.width - 1);
-                let y1 = (y0 + 1).min(i.height - 1);
-                let fx = (x - x0 as f64) as f32;
-                let fy = (y - y0 as f64) as f32;
+                let (x0, y0, x1, y1, fx, fy) = bilinear_taps(i.width, i.height, x, y);
                 let (a, b, c, d) = (
                     i.pixel(x0, y0),
                     i.pixel(x1, y0),
