@@ -57,6 +57,14 @@ pub struct FitConfig {
     /// At most this many pixels of a cluster feed its binned observations (spread
     /// evenly); per-pixel errors always use every observation.
     pub max_fit_pixels: usize,
+    /// The per-pixel errors that drive the splits (eq. 8) and the split-gain test use
+    /// at most this many observations of each pixel, spread evenly over its frames.
+    /// Every split level visits every pixel, so this bounds the tree's cost per pixel
+    /// whatever the video length; the final residual map and re-rendering check use
+    /// every observation. Measured on a 20 s `tiny` capture (62 observations per
+    /// pixel): 32 cut the cluster-fit time from 1.5 to 1.1 s with diffuse RMSE 0.036 ->
+    /// 0.032 and mean relighting error 48% -> 52%; 16 cost more accuracy (60%).
+    pub max_split_observations: usize,
     /// Bin width of the four angles of the redundant-observation binning, degrees
     /// (paper: 5).
     pub bin_deg: f64,
@@ -112,6 +120,7 @@ impl Default for FitConfig {
             min_split_gain: 0.02,
             max_depth: 24,
             max_fit_pixels: 4000,
+            max_split_observations: 32,
             bin_deg: 5.0,
             bin_cm: 1.0,
             max_iterations: 60,
@@ -186,6 +195,13 @@ impl FitConfig {
                 "fit pixels per cluster",
                 &self.max_fit_pixels,
                 "at least the minimum cluster size",
+            );
+        }
+        if self.max_split_observations < 1 {
+            return bad(
+                "split observations per pixel",
+                &self.max_split_observations,
+                ">= 1",
             );
         }
         if !(self.bin_deg >= 3.0 && self.bin_deg <= 45.0) {

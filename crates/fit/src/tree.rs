@@ -140,18 +140,25 @@ pub fn binned_samples(ctx: &Context, pixels: &[u32]) -> Vec<Sample> {
         .collect()
 }
 
-/// Mean squared error (over observations and channels) per pixel, and the summed
-/// squared error of all observations.
+/// Mean squared error (over observations and channels) per pixel, the summed squared
+/// error and the number of observations it was computed over: at most
+/// `max_split_observations` per pixel, spread evenly over its frames, so that the cost
+/// of a split level does not grow with the length of the video.
 pub fn pixel_errors(ctx: &Context, pixels: &[u32], params: &BrdfParams) -> (Vec<f64>, f64, usize) {
     let p = Prepared::new(*params);
     let obs = ctx.obs;
+    let cap = ctx.cfg.max_split_observations;
     let per: Vec<(f64, usize)> = pixels
         .par_iter()
         .with_min_len(256)
         .map(|&px| {
             let px = px as usize;
             let mut s = 0.0;
-            for o in obs.range(px) {
+            let r = obs.range(px);
+            let step = r.len().div_ceil(cap).max(1);
+            let mut n = 0;
+            for o in r.step_by(step) {
+                n += 1;
                 let v = ctx.model.radiance(&p, &obs.light_view(px, o), 1.0);
                 let c = obs.color(o);
                 let cl = obs.clipped(o);
@@ -159,7 +166,7 @@ pub fn pixel_errors(ctx: &Context, pixels: &[u32], params: &BrdfParams) -> (Vec<
                     s += residual(v[k] * ctx.intensity[k], c[k], cl[k]).powi(2);
                 }
             }
-            (s, obs.count(px))
+            (s, n)
         })
         .collect();
     let sse = per.iter().map(|e| e.0).sum();
