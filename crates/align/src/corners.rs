@@ -9,7 +9,7 @@
 //! and the corners are the intersections of adjacent lines.
 
 use svbrdf_core::color::srgb8_to_linear_table;
-use svbrdf_core::geometry::Vec2;
+use svbrdf_core::geometry::{centroid_scatter, Vec2};
 use svbrdf_core::image::ImageU8;
 
 /// Linear luminance of an 8-bit sRGB image, for edge localisation.
@@ -64,14 +64,7 @@ fn fit_line(pts: &[Vec2]) -> Option<Line> {
     if pts.len() < 3 {
         return None;
     }
-    let c = pts.iter().fold(Vec2::zeros(), |a, p| a + p) / pts.len() as f64;
-    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
-    for p in pts {
-        let q = p - c;
-        sxx += q.x * q.x;
-        sxy += q.x * q.y;
-        syy += q.y * q.y;
-    }
+    let (c, [sxx, sxy, syy]) = centroid_scatter(pts)?;
     // Normal = eigenvector of the smaller eigenvalue of the scatter matrix.
     let theta = 0.5 * (2.0 * sxy).atan2(sxx - syy);
     let dir = Vec2::new(theta.cos(), theta.sin());

@@ -305,6 +305,23 @@ pub fn rot_z(a: f64) -> Mat3 {
     Mat3::new(c, -s, 0.0, s, c, 0.0, 0.0, 0.0, 1.0)
 }
 
+/// Centroid of 2-D points and their scatter about it, `(centroid, [sxx, sxy, syy])`
+/// (sums of products of the centred coordinates). `None` for no points.
+pub fn centroid_scatter(pts: &[Vec2]) -> Option<(Vec2, [f64; 3])> {
+    if pts.is_empty() {
+        return None;
+    }
+    let c = pts.iter().fold(Vec2::zeros(), |a, p| a + p) / pts.len() as f64;
+    let mut s = [0.0; 3];
+    for p in pts {
+        let q = p - c;
+        s[0] += q.x * q.x;
+        s[1] += q.x * q.y;
+        s[2] += q.y * q.y;
+    }
+    Some((c, s))
+}
+
 /// Row-major array form of a 3x3 matrix, as written in our JSON files.
 pub fn mat3_to_rows(m: &Mat3) -> [[f64; 3]; 3] {
     [

@@ -2,7 +2,7 @@
 
 use nalgebra::{DMatrix, SymmetricEigen};
 
-use crate::geometry::{Mat3, Vec2};
+use crate::geometry::{centroid_scatter, Mat3, Vec2};
 use crate::CoreError;
 
 /// A homography acting on 2-D points in homogeneous coordinates.
@@ -119,19 +119,13 @@ impl Homography {
 /// Similarity that moves the centroid to the origin and the mean distance to sqrt(2).
 fn normalizing_transform(pts: &[Vec2]) -> Result<Homography, CoreError> {
     let n = pts.len() as f64;
-    let c = pts.iter().fold(Vec2::zeros(), |a, p| a + p) / n;
+    let (c, [sxx, sxy, syy]) =
+        centroid_scatter(pts).ok_or_else(|| CoreError::Degenerate("no points".into()))?;
     let d = pts.iter().map(|p| (p - c).norm()).sum::<f64>() / n;
     if d < 1e-12 {
         return Err(CoreError::Degenerate("all points coincide".into()));
     }
     // Collinear points fix no homography: reject them by the spread's smaller axis.
-    let (mut sxx, mut sxy, mut syy) = (0.0, 0.0, 0.0);
-    for p in pts {
-        let q = p - c;
-        sxx += q.x * q.x;
-        sxy += q.x * q.y;
-        syy += q.y * q.y;
-    }
     let tr = sxx + syy;
     let det = sxx * syy - sxy * sxy;
     let small = 0.5 * (tr - (tr * tr - 4.0 * det).max(0.0).sqrt());

@@ -202,7 +202,8 @@ pub struct ClusterInfo {
     pub depth: usize,
     /// The cluster's BRDF (before per-pixel refinement).
     pub params: BrdfParams,
-    /// RMS error over its raw observations, linear radiance.
+    /// RMS error over its pixels' observations (at most `max_split_observations` per
+    /// pixel), linear radiance.
     pub rmse: f64,
     /// Whether its solver converged before the iteration cap.
     pub converged: bool,
@@ -251,9 +252,10 @@ pub struct FitSummary {
     pub unconverged_clusters: Vec<u32>,
     /// Whether the per-pixel refinement ran.
     pub refined: bool,
-    /// RMS re-rendering error over all observations before refinement (linear).
+    /// RMS error of the cluster solutions (before refinement, linear), over the
+    /// observations the split decisions use: at most `max_split_observations` per pixel.
     pub rmse_clusters: f64,
-    /// The same after refinement (equal to `rmse_clusters` without refinement).
+    /// RMS re-rendering error of the final maps over every observation.
     pub rmse_final: f64,
     /// Re-rendering error per input frame.
     pub frames: Vec<render::FrameError>,
@@ -512,8 +514,7 @@ pub fn fit(
 
     let t = Instant::now();
     progress.stage("re-rendering check", 1);
-    let residual = render::pixel_residuals(obs, &params, model, intensity);
-    let frames = render::frame_errors(obs, &params, model, intensity);
+    let (residual, frames) = render::rerender_check(obs, &params, model, intensity);
     progress.finish();
     timings.push(("re-rendering check".to_string(), t.elapsed().as_secs_f64()));
     let (sse, n): (f64, usize) = frames
@@ -682,6 +683,38 @@ mod tests {
             assert!(p.normal().z > 0.999);
         }
         assert!(maps.params.iter().all(BrdfParams::is_physical));
+    }
+
+    #[test]
+    fn rerender_check_keeps_pixels_in_grid_order() {
+        let (obs, _, truth) = two_materials();
+        // Wrong on purpose on the right half, so residuals differ by pixel.
+        let params: Vec<BrdfParams> = (0..obs.pixels())
+            .map(|p| truth[usize::from(p % 40 >= 20)])
+            .collect();
+        let mut off = params.clone();
+        for (p, q) in off.iter_mut().enumerate() {
+            q.rho_d[0] *= 1.0 + (p % 7) as f64 * 0.05;
+        }
+        let (res, frames) = render::rerender_check(&obs, &off, &Ward, [100.0; 3]);
+        assert_eq!(res.len(), obs.pixels());
+        for px in [0, 17, 40 * 13 + 5, 40 * 39 + 39] {
+            let prep = Prepared::new(off[px]);
+            let mut s = 0.0;
+            for o in obs.range(px) {
+                let v = Ward.radiance(&prep, &obs.light_view(px, o), 100.0);
+                let c = obs.color(o);
+                s += (0..3).map(|k| (v[k] - c[k]).powi(2)).sum::<f64>();
+            }
+            let want = (s / (3 * obs.count(px)) as f64).sqrt();
+            assert!((f64::from(res[px]) - want).abs() < 1e-6, "pixel {px}");
+        }
+        assert_eq!(
+            frames.iter().map(|f| f.observations).sum::<usize>(),
+            obs.len()
+        );
+        let (exact, _) = render::rerender_check(&obs, &params, &Ward, [100.0; 3]);
+        assert!(exact.iter().all(|r| *r < 1e-4));
     }
 
     #[test]

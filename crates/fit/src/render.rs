@@ -44,49 +44,63 @@ fn predict(
     ]
 }
 
-/// Error of every frame's re-rendering against what it observed.
-pub fn frame_errors(
+/// Re-render every observation once and report the error both ways: RMS per pixel
+/// over its observations (linear radiance; 0 where unobserved) and per input frame.
+pub fn rerender_check(
     obs: &Observations,
     params: &[BrdfParams],
     model: &dyn BrdfModel,
     intensity: [f64; 3],
-) -> Vec<FrameError> {
+) -> (Vec<f32>, Vec<FrameError>) {
     let nf = obs.frames.len();
-    let acc = (0..obs.pixels())
+    // Per frame: squared error, observed sum, observation count.
+    type FrameAcc = Vec<(f64, f64, usize)>;
+    let (residuals, acc): (Vec<f32>, FrameAcc) = (0..obs.pixels())
         .into_par_iter()
         .with_min_len(1024)
         .fold(
-            || vec![(0.0f64, 0.0f64, 0usize); nf],
-            |mut acc, px| {
-                if obs.count(px) > 0 {
-                    let prep = Prepared::new(params[px]);
-                    for o in obs.range(px) {
-                        let v = predict(obs, model, &prep, intensity, px, o);
-                        let c = obs.color(o);
-                        let cl = obs.clipped(o);
-                        let a = &mut acc[usize::from(obs.frame[o])];
-                        for k in 0..3 {
-                            a.0 += residual(v[k], c[k], cl[k]).powi(2);
-                            a.1 += c[k];
-                        }
-                        a.2 += 1;
-                    }
+            || (Vec::new(), vec![(0.0f64, 0.0f64, 0usize); nf]),
+            |(mut res, mut acc), px| {
+                let n = obs.count(px);
+                if n == 0 {
+                    res.push(0.0);
+                    return (res, acc);
                 }
-                acc
+                let prep = Prepared::new(params[px]);
+                let mut s = 0.0;
+                for o in obs.range(px) {
+                    let v = predict(obs, model, &prep, intensity, px, o);
+                    let c = obs.color(o);
+                    let cl = obs.clipped(o);
+                    let a = &mut acc[usize::from(obs.frame[o])];
+                    for k in 0..3 {
+                        let e = residual(v[k], c[k], cl[k]).powi(2);
+                        s += e;
+                        a.0 += e;
+                        a.1 += c[k];
+                    }
+                    a.2 += 1;
+                }
+                res.push((s / (3 * n) as f64).sqrt() as f32);
+                (res, acc)
             },
         )
         .reduce(
-            || vec![(0.0, 0.0, 0); nf],
-            |mut a, b| {
-                for (x, y) in a.iter_mut().zip(b) {
+            || (Vec::new(), vec![(0.0, 0.0, 0); nf]),
+            |(mut ra, mut aa), (rb, ab)| {
+                // Rayon keeps the order of the folded chunks, so appending keeps pixels
+                // in grid order.
+                ra.extend(rb);
+                for (x, y) in aa.iter_mut().zip(ab) {
                     x.0 += y.0;
                     x.1 += y.1;
                     x.2 += y.2;
                 }
-                a
+                (ra, aa)
             },
         );
-    acc.into_iter()
+    let frames = acc
+        .into_iter()
         .enumerate()
         .map(|(k, (sse, sum, n))| {
             let m = (3 * n).max(1) as f64;
@@ -100,38 +114,8 @@ pub fn frame_errors(
                 relative: if mean > 0.0 { rmse / mean } else { 0.0 },
             }
         })
-        .collect()
-}
-
-/// Root mean square error per pixel over its observations (linear radiance; 0 where
-/// unobserved).
-pub fn pixel_residuals(
-    obs: &Observations,
-    params: &[BrdfParams],
-    model: &dyn BrdfModel,
-    intensity: [f64; 3],
-) -> Vec<f32> {
-    (0..obs.pixels())
-        .into_par_iter()
-        .with_min_len(1024)
-        .map(|px| {
-            let n = obs.count(px);
-            if n == 0 {
-                return 0.0;
-            }
-            let prep = Prepared::new(params[px]);
-            let mut s = 0.0;
-            for o in obs.range(px) {
-                let v = predict(obs, model, &prep, intensity, px, o);
-                let c = obs.color(o);
-                let cl = obs.clipped(o);
-                for k in 0..3 {
-                    s += residual(v[k], c[k], cl[k]).powi(2);
-                }
-            }
-            (s / (3 * n) as f64).sqrt() as f32
-        })
-        .collect()
+        .collect();
+    (residuals, frames)
 }
 
 /// Side-by-side strip: for each chosen frame number, the observed frame rectified onto

@@ -15,7 +15,7 @@ use svbrdf_core::geometry::Vec3;
 
 use crate::config::FitConfig;
 use crate::observations::{residual, Observations};
-use crate::solver::{Bounds, Freedom, Problem, Sample};
+use crate::solver::{Bounds, Freedom, Problem, Sample, Solution};
 
 /// Everything a cluster fit needs.
 pub struct Context<'a> {
@@ -49,9 +49,10 @@ pub struct Leaf {
     pub params: BrdfParams,
     /// Split level (0: an initial cluster).
     pub depth: usize,
-    /// Summed squared error over all raw observations of its pixels.
+    /// Summed squared error over its pixels' observations (at most
+    /// `max_split_observations` of each pixel, as the split decisions use).
     pub sse: f64,
-    /// Number of raw observations.
+    /// Number of observations `sse` is over.
     pub observations: usize,
     /// Whether the solver converged (false: stopped at the iteration cap).
     pub converged: bool,
@@ -223,6 +224,25 @@ pub fn initial_params(ctx: &Context, pixels: &[u32]) -> BrdfParams {
 /// The isotropic flat fit of an initial cluster alone (paper 3.2.1), optionally
 /// without the energy bound: used to fix albedo units when the intensity is unknown.
 pub fn initial_fit(ctx: &Context, pixels: &[u32], energy: bool) -> BrdfParams {
+    let start = initial_params(ctx, pixels);
+    best_solution(
+        ctx,
+        pixels,
+        &starting_roughness(&start),
+        &Freedom::ISOTROPIC_FLAT,
+        energy,
+    )
+    .map_or(start, |s| s.params)
+}
+
+/// Bin a cluster's observations and fit from each start; the lowest-cost solution.
+fn best_solution(
+    ctx: &Context,
+    pixels: &[u32],
+    inits: &[BrdfParams],
+    fr: &Freedom,
+    energy: bool,
+) -> Option<Solution> {
     let samples = binned_samples(ctx, pixels);
     let mut bounds = ctx.bounds();
     bounds.energy = energy;
@@ -233,12 +253,10 @@ pub fn initial_fit(ctx: &Context, pixels: &[u32], energy: bool) -> BrdfParams {
         bounds,
         tolerance: ctx.cfg.tolerance,
     };
-    let start = initial_params(ctx, pixels);
-    starting_roughness(&start)
+    inits
         .iter()
-        .map(|init| prob.solve(init, &Freedom::ISOTROPIC_FLAT, None, ctx.cfg.max_iterations))
+        .map(|init| prob.solve(init, fr, None, ctx.cfg.max_iterations))
         .min_by(|a, b| a.cost.total_cmp(&b.cost))
-        .map_or(start, |s| s.params)
 }
 
 /// The paper starts at alpha = 0.1; two more starting roughnesses cost little at the
@@ -264,19 +282,8 @@ struct Fitted {
 }
 
 fn fit(ctx: &Context, pixels: &[u32], inits: &[BrdfParams], fr: &Freedom) -> Fitted {
-    let samples = binned_samples(ctx, pixels);
-    let prob = Problem {
-        model: ctx.model,
-        samples: &samples,
-        intensity: ctx.intensity,
-        bounds: ctx.bounds(),
-        tolerance: ctx.cfg.tolerance,
-    };
-    let best = inits
-        .iter()
-        .map(|init| prob.solve(init, fr, None, ctx.cfg.max_iterations))
-        .min_by(|a, b| a.cost.total_cmp(&b.cost));
-    let (params, converged) = best.map_or((inits[0], false), |s| (s.params, s.converged));
+    let (params, converged) = best_solution(ctx, pixels, inits, fr, true)
+        .map_or((inits[0], false), |s| (s.params, s.converged));
     let (errs, sse, n_obs) = pixel_errors(ctx, pixels, &params);
     Fitted {
         params,
