@@ -362,6 +362,8 @@ fn print_summary(s: &svbrdf_synth::SynthSummary) {
     }
 }
 
+mod alloc;
+
 fn main() -> ExitCode {
     // `svbrdf bench | head -1` closes our stdout early; Rust then panics inside
     // `println!`. End quietly with the shell's broken-pipe status instead.

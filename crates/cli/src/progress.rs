@@ -27,6 +27,7 @@ impl Bars {
 
 impl svbrdf_core::progress::Progress for Bars {
     fn stage(&self, name: &str, total: u64) {
+        crate::alloc::release_free_memory();
         let bar = ProgressBar::with_draw_target(Some(total), ProgressDrawTarget::stderr());
         let style = ProgressStyle::with_template(
             "{msg:>20} [{bar:30}] {pos}/{len} {elapsed_precise} eta {eta}",
