@@ -38,6 +38,10 @@ enum Command {
     /// Fit svBRDF maps (diffuse, specular, roughness, normal) to a registered capture
     /// (paper section 3.2) and check them by re-rendering every frame.
     Fit(fit_cmd::FitArgs),
+    /// The whole pipeline: align, fit, export and report, reusing finished stages.
+    Run(run_cmd::RunArgs),
+    /// Export fitted maps as a glTF 2.0 material and a Mitsuba 3 scene.
+    Export(run_cmd::ExportArgs),
     /// Measure speed and accuracy and print one JSON object per line.
     Bench(bench::BenchArgs),
 }
@@ -363,6 +367,7 @@ fn print_summary(s: &svbrdf_synth::SynthSummary) {
 }
 
 mod alloc;
+mod run_cmd;
 
 fn main() -> ExitCode {
     // `svbrdf bench | head -1` closes our stdout early; Rust then panics inside
@@ -388,6 +393,8 @@ fn main() -> ExitCode {
         Command::Demo(a) => run_demo(&a),
         Command::Align(a) => run_align(&a),
         Command::Fit(a) => fit_cmd::run_fit(&a).map(|_| ()),
+        Command::Run(a) => run_cmd::run_pipeline(&a).and_then(|o| run_cmd::print_run_summary(&o)),
+        Command::Export(a) => run_cmd::run_export(&a).map(|_| ()),
         Command::Bench(a) => bench::run(&a),
     };
     match result {

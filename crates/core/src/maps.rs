@@ -210,7 +210,9 @@ fn write_png_bytes(
         }
         enc.add_text_chunk("svbrdf:encoding".into(), encoding.as_str().into())
             .map_err(fmt)?;
-        for (k, v) in meta {
+        // `svbrdf:encoding` is written above from `encoding`; a second copy from `meta`
+        // would make readers that store text chunks as unique keys (Mitsuba) fail.
+        for (k, v) in meta.iter().filter(|(k, _)| *k != "encoding") {
             enc.add_text_chunk(format!("svbrdf:{k}"), v.clone())
                 .map_err(fmt)?;
         }

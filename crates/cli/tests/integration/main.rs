@@ -4,5 +4,6 @@
 mod align;
 mod bad_input;
 mod fit;
+mod run;
 mod synth;
 mod util;

@@ -44,3 +44,49 @@ pub fn tiny_capture() -> &'static Path {
 pub fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
+
+/// The repository root (tools/ and scripts/ live there).
+pub fn repo_root() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// True when `.ci/run` asked for every optional tool to be present: a test that would
+/// skip for a missing tool fails instead.
+pub fn tools_required() -> bool {
+    std::env::var_os("SVBRDF_REQUIRE_TOOLS").is_some_and(|v| v == "1")
+}
+
+/// Skip (return true) with a reason, or fail under `SVBRDF_REQUIRE_TOOLS=1`.
+pub fn skip_without(tool: &str, present: bool, install: &str) -> bool {
+    if present {
+        return false;
+    }
+    assert!(
+        !tools_required(),
+        "{tool} is missing but SVBRDF_REQUIRE_TOOLS=1 ({install})"
+    );
+    eprintln!("SKIPPED: {tool} is not installed ({install})");
+    true
+}
+
+/// One `svbrdf run` of the shared tiny capture.
+pub fn tiny_run() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let cap = tiny_capture();
+        let out = temp_dir().join("run");
+        let o = svbrdf(&[
+            "run",
+            "--video",
+            cap.join("flash.mp4").to_str().unwrap(),
+            "--reference",
+            cap.join("reference.jpg").to_str().unwrap(),
+            "--camera",
+            cap.join("camera.json").to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "run failed: {}", stderr(&o));
+        out
+    })
+}

@@ -1,0 +1,371 @@
+//! `svbrdf run` (align, fit, export and report with stage reuse) and `svbrdf export`.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use anyhow::{Context, Result};
+use clap::Args;
+use serde_json::{json, Value};
+use svbrdf_core::brdf::ModelKind;
+use svbrdf_export::{ExportConfig, MaterialMaps};
+
+/// Folder names inside a run's output folder.
+pub const ALIGNED: &str = "aligned";
+/// Fit output.
+pub const MAPS: &str = "maps";
+/// Exports.
+pub const EXPORT: &str = "export";
+/// The run's record of inputs, settings and finished stages.
+pub const RUN_FILE: &str = "run.json";
+const RUN_FORMAT: &str = "svbrdf-run";
+
+#[derive(Args, Clone)]
+pub struct ExportArgs {
+    /// A fit output folder (holding fit.json and maps/).
+    #[arg(long)]
+    pub maps: PathBuf,
+    /// Output folder; gets gltf/ (material.gltf + textures) and mitsuba/ (scene.xml).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Material name inside the files (letters, digits, '_' and '-').
+    #[arg(long, default_value = "svbrdf_material")]
+    pub name: String,
+    /// Leave out the preview sphere (the quad alone).
+    #[arg(long)]
+    pub no_sphere: bool,
+    /// Replace existing export folders.
+    #[arg(long)]
+    pub overwrite: bool,
+}
+
+/// Read a fit output folder as exportable maps.
+pub fn load_maps(dir: &Path) -> Result<MaterialMaps> {
+    let m = svbrdf_fit::output::read_maps(dir)
+        .with_context(|| format!("reading the fitted maps in {}", dir.display()))?;
+    let model = match m.manifest.model.as_str() {
+        "ward" => ModelKind::Ward,
+        "ggx" => ModelKind::Ggx,
+        other => anyhow::bail!(
+            "{}: unknown model {other:?} (expected ward or ggx)",
+            dir.join("fit.json").display()
+        ),
+    };
+    Ok(MaterialMaps {
+        model,
+        grid: m.grid,
+        params: m.params,
+    })
+}
+
+fn export_config(a: &ExportArgs) -> ExportConfig {
+    ExportConfig {
+        name: a.name.clone(),
+        sphere: !a.no_sphere,
+        ..ExportConfig::default()
+    }
+}
+
+pub fn run_export(a: &ExportArgs) -> Result<svbrdf_export::ExportSummary> {
+    let cfg = export_config(a);
+    cfg.validate()?;
+    let maps = load_maps(&a.maps)?;
+    let s = svbrdf_export::export_all(&maps, &cfg, &a.out, a.overwrite)?;
+    println!("wrote {} (glTF 2.0)", s.gltf.display());
+    println!(
+        "wrote {} (Mitsuba 3; render with python3 {})",
+        s.mitsuba.display(),
+        s.mitsuba.with_file_name("render.py").display()
+    );
+    Ok(s)
+}
+
+#[derive(Args, Clone)]
+#[command(allow_negative_numbers = true)]
+pub struct RunArgs {
+    /// The flash video (any container and codec FFmpeg decodes).
+    #[arg(long)]
+    pub video: PathBuf,
+    /// The reference photo showing all four markers (JPEG/PNG).
+    #[arg(long)]
+    pub reference: PathBuf,
+    /// Phone description (JSON; see `svbrdf align --help`). Default: the paper's phone.
+    #[arg(long)]
+    pub camera: Option<PathBuf>,
+    /// Output folder: aligned/, maps/, export/, report.html, run.json. Finished stages
+    /// whose inputs and settings did not change are reused.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Output region on the plane as x_min,x_max,y_min,y_max in cm (default: bounded
+    /// by the markers' inner corners).
+    #[arg(long, value_delimiter = ',', num_args = 4)]
+    pub region: Option<Vec<f64>>,
+    /// Map resolution in pixels per cm (default: half the frames' sampling density).
+    #[arg(long)]
+    pub px_per_cm: Option<f64>,
+    /// Reflectance model: `ward` (the paper's) or `ggx` (with Fresnel).
+    #[arg(long, default_value = "ward")]
+    pub model: String,
+    /// Fit settings file (JSON subset of `svbrdf_fit::FitConfig`).
+    #[arg(long)]
+    pub fit_config: Option<PathBuf>,
+    /// Skip the per-pixel refinement (maps constant within each cluster, as the paper).
+    #[arg(long)]
+    pub no_refine: bool,
+    /// Seed of the clustering's random choices.
+    #[arg(long)]
+    pub seed: Option<u64>,
+    /// Rerun every stage even when its earlier result is still valid.
+    #[arg(long)]
+    pub force: bool,
+    /// Allow replacing an output folder that holds a run of other inputs.
+    #[arg(long)]
+    pub overwrite: bool,
+}
+
+fn fnv1a(bytes: &[u8], mut h: u64) -> u64 {
+    for b in bytes {
+        h ^= u64::from(*b);
+        h = h.wrapping_mul(0x100_0000_01b3);
+    }
+    h
+}
+
+/// A file's identity: absolute path, size, modification time and a hash of its first
+/// megabyte (enough to notice a replaced file without reading a 1 GB video).
+fn file_identity(p: &Path) -> Result<Value> {
+    use std::io::Read;
+    let meta = std::fs::metadata(p)
+        .with_context(|| format!("invalid input {} (expected an existing file)", p.display()))?;
+    anyhow::ensure!(
+        meta.is_file(),
+        "invalid input {} (expected a file, found a folder)",
+        p.display()
+    );
+    let mtime = meta
+        .modified()
+        .ok()
+        .and_then(|t| t.duration_since(std::time::UNIX_EPOCH).ok())
+        .map(|d| d.as_secs_f64());
+    let mut head = Vec::new();
+    std::fs::File::open(p)
+        .with_context(|| format!("opening {}", p.display()))?
+        .take(1 << 20)
+        .read_to_end(&mut head)
+        .with_context(|| format!("reading {}", p.display()))?;
+    Ok(json!({
+        "path": std::path::absolute(p).unwrap_or_else(|_| p.to_path_buf()),
+        "bytes": meta.len(),
+        "modified": mtime,
+        "head_fnv1a": format!("{:016x}", fnv1a(&head, 0xcbf2_9ce4_8422_2325)),
+    }))
+}
+
+fn fingerprint(v: &Value) -> String {
+    format!(
+        "{:016x}",
+        fnv1a(v.to_string().as_bytes(), 0xcbf2_9ce4_8422_2325)
+    )
+}
+
+/// What `run` did.
+pub struct RunOutcome {
+    pub out: PathBuf,
+    pub record: Value,
+}
+
+fn write_record(path: &Path, record: &Value) -> Result<()> {
+    svbrdf_core::fsutil::write_json(path, record)?;
+    Ok(())
+}
+
+/// Align, fit, export and report, reusing finished stages.
+pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
+    let align_args = crate::AlignArgs {
+        video: a.video.clone(),
+        reference: a.reference.clone(),
+        camera: a.camera.clone(),
+        out: a.out.join(ALIGNED),
+        region: a.region.clone(),
+        px_per_cm: a.px_per_cm,
+        fine_long_side: None,
+        fine_features: None,
+        fine_min_inliers: None,
+        fine_inlier_px: None,
+        subframes: None,
+        all_pairs: false,
+        overwrite: true,
+    };
+    let fit_args = crate::fit_cmd::FitArgs {
+        capture: a.out.join(ALIGNED),
+        out: a.out.join(MAPS),
+        config: a.fit_config.clone(),
+        model: a.model.clone(),
+        px_per_cm: None,
+        light_intensity: None,
+        no_refine: a.no_refine,
+        seed: a.seed,
+        overwrite: true,
+    };
+    let export_args = ExportArgs {
+        maps: a.out.join(MAPS),
+        out: a.out.join(EXPORT),
+        name: "svbrdf_material".into(),
+        no_sphere: false,
+        overwrite: true,
+    };
+    // Validate every setting before the first stage starts.
+    let align_cfg = crate::align_config(&align_args)?;
+    let fit_cfg = crate::fit_cmd::fit_config(&fit_args)?;
+    let export_cfg = export_config(&export_args);
+    export_cfg.validate()?;
+
+    let inputs = json!({
+        "video": file_identity(&a.video)?,
+        "reference": file_identity(&a.reference)?,
+        "camera": match &a.camera { Some(c) => file_identity(c)?, None => Value::Null },
+    });
+    let record_path = a.out.join(RUN_FILE);
+    let previous: Option<Value> = if record_path.exists() {
+        let v: Value = svbrdf_core::fsutil::read_json(&record_path)?;
+        (v["format"] == RUN_FORMAT).then_some(v)
+    } else {
+        None
+    };
+    if a.out.exists() && !a.overwrite {
+        let non_empty = std::fs::read_dir(&a.out)
+            .with_context(|| format!("reading {}", a.out.display()))?
+            .next()
+            .is_some();
+        match &previous {
+            None if non_empty => anyhow::bail!(
+                "invalid output folder {} (it holds files that are not an svbrdf run; expected a new or empty folder, or pass --overwrite)",
+                a.out.display()
+            ),
+            Some(p) if p["inputs"]["video"]["head_fnv1a"] != inputs["video"]["head_fnv1a"]
+                || p["inputs"]["video"]["bytes"] != inputs["video"]["bytes"] =>
+            {
+                anyhow::bail!(
+                    "invalid output folder {} (it holds a run of another video, {}; expected a new folder, or pass --overwrite)",
+                    a.out.display(),
+                    p["inputs"]["video"]["path"]
+                )
+            }
+            _ => {}
+        }
+    }
+    std::fs::create_dir_all(&a.out).with_context(|| format!("creating {}", a.out.display()))?;
+
+    let settings = json!({
+        "align": align_cfg,
+        "fit": fit_cfg,
+        "export": export_cfg,
+    });
+    let mut record = json!({
+        "format": RUN_FORMAT,
+        "version": 1,
+        "svbrdf": env!("CARGO_PKG_VERSION"),
+        "inputs": inputs,
+        "settings": settings,
+        "stages": {},
+    });
+    let old_stage = |name: &str| previous.as_ref().map(|p| p["stages"][name].clone());
+    let mut prev_fp = fingerprint(&json!([record["svbrdf"], record["inputs"]]));
+    type Stage<'a> = (&'a str, &'a Path, Box<dyn Fn() -> Result<()> + 'a>);
+    let stages: Vec<Stage> = vec![
+        (
+            "align",
+            &align_args.out,
+            Box::new(|| crate::run_align(&align_args)),
+        ),
+        (
+            "fit",
+            &fit_args.out,
+            Box::new(|| crate::fit_cmd::run_fit(&fit_args).map(|_| ())),
+        ),
+        (
+            "export",
+            &export_args.out,
+            Box::new(|| run_export(&export_args).map(|_| ())),
+        ),
+    ];
+    for (name, dir, stage) in &stages {
+        let fp = fingerprint(&json!([prev_fp, record["settings"][*name]]));
+        let reusable = !a.force
+            && dir.exists()
+            && old_stage(name).is_some_and(|s| s["fingerprint"] == json!(fp));
+        if reusable {
+            println!(
+                "== {name}: reusing {} (inputs and settings unchanged)",
+                dir.display()
+            );
+            record["stages"][*name] = old_stage(name).unwrap_or(Value::Null);
+        } else {
+            println!("== {name}");
+            let t0 = Instant::now();
+            stage()?;
+            record["stages"][*name] = json!({
+                "fingerprint": fp,
+                "seconds": t0.elapsed().as_secs_f64(),
+                "output": dir.file_name().map(|f| f.to_string_lossy().into_owned()),
+            });
+            // Record each finished stage at once, so an interrupted run resumes here.
+            write_record(&record_path, &record)?;
+        }
+        prev_fp = fp;
+        println!();
+    }
+    write_record(&record_path, &record)?;
+    Ok(RunOutcome {
+        out: a.out.clone(),
+        record,
+    })
+}
+
+/// The closing summary of a run.
+pub fn print_run_summary(o: &RunOutcome) -> Result<()> {
+    let align: Value = svbrdf_core::fsutil::read_json(&o.out.join(ALIGNED).join("align.json"))?;
+    let fit: Value = svbrdf_core::fsutil::read_json(&o.out.join(MAPS).join("fit.json"))?;
+    let f = &align["summary"]["frames"];
+    println!("== summary");
+    println!(
+        "frames: {} decoded, {} kept; dropped {} blurry, {} disconnected, {} unregistered, {} outside the markers",
+        f["decoded"], f["kept"], f["blurry"], f["disconnected"], f["unregistered"], f["outside"]
+    );
+    let s = &fit["summary"];
+    println!(
+        "clusters: {} initial, {} final; model {}",
+        s["initial_clusters"], s["final_clusters"], fit["model"]
+    );
+    let secs: Vec<String> = ["align", "fit", "export"]
+        .iter()
+        .map(|n| {
+            format!(
+                "{n} {:.1} s",
+                o.record["stages"][*n]["seconds"].as_f64().unwrap_or(0.0)
+            )
+        })
+        .collect();
+    println!("stage times (when last run): {}", secs.join(", "));
+    println!("files:");
+    for (what, p) in [
+        ("report", o.out.join("report.html")),
+        (
+            "glTF",
+            o.out.join(EXPORT).join("gltf").join("material.gltf"),
+        ),
+        (
+            "Mitsuba",
+            o.out.join(EXPORT).join("mitsuba").join("scene.xml"),
+        ),
+        ("maps", o.out.join(MAPS).join("maps")),
+        (
+            "registered capture",
+            o.out.join(ALIGNED).join("capture.json"),
+        ),
+    ] {
+        if p.exists() {
+            println!("  {what:>18}: {}", p.display());
+        }
+    }
+    Ok(())
+}

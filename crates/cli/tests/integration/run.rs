@@ -1,0 +1,203 @@
+//! The whole product: `svbrdf run` with stage reuse, and the exports checked by the
+//! tools users open them with (Khronos glTF validator, Mitsuba 3).
+use std::process::Command;
+
+use crate::util::{repo_root, skip_without, stderr, svbrdf, temp_dir, tiny_capture, tiny_run};
+
+fn stdout(o: &std::process::Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+#[test]
+fn run_writes_everything_and_reuses_finished_stages() {
+    let out = tiny_run();
+    for f in [
+        "run.json",
+        "aligned/capture.json",
+        "maps/fit.json",
+        "maps/maps/diffuse.exr",
+        "export/gltf/material.gltf",
+        "export/gltf/base_color.png",
+        "export/mitsuba/scene.xml",
+        "export/mitsuba/render.py",
+    ] {
+        assert!(out.join(f).exists(), "{f} missing");
+    }
+    // A copy of the finished run: rerunning reuses every stage.
+    let copy = temp_dir().join("copy");
+    let status = Command::new("cp")
+        .args(["-r", out.to_str().unwrap(), copy.to_str().unwrap()])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let cap = tiny_capture();
+    let args = |extra: &[&str]| {
+        let mut v = vec![
+            "run".to_string(),
+            "--video".into(),
+            cap.join("flash.mp4").to_string_lossy().into_owned(),
+            "--reference".into(),
+            cap.join("reference.jpg").to_string_lossy().into_owned(),
+            "--camera".into(),
+            cap.join("camera.json").to_string_lossy().into_owned(),
+            "--out".into(),
+            copy.to_string_lossy().into_owned(),
+        ];
+        v.extend(extra.iter().map(|s| s.to_string()));
+        v
+    };
+    let run = |extra: &[&str]| {
+        let a = args(extra);
+        let refs: Vec<&str> = a.iter().map(String::as_str).collect();
+        svbrdf(&refs)
+    };
+    let o = run(&[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s = stdout(&o);
+    for stage in ["align", "fit", "export"] {
+        assert!(
+            s.contains(&format!("== {stage}: reusing")),
+            "{stage} not reused:\n{s}"
+        );
+    }
+    // A changed fit setting reruns the fit and what follows, not the alignment.
+    let o = run(&["--model", "ggx"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let s = stdout(&o);
+    assert!(s.contains("== align: reusing"), "{s}");
+    assert!(s.contains("== fit\n") && s.contains("== export\n"), "{s}");
+    let fit: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(copy.join("maps/fit.json")).unwrap())
+            .unwrap();
+    assert_eq!(fit["model"], "ggx");
+    // A half-finished stage (its record says done but its folder is gone) is redone.
+    std::fs::remove_dir_all(copy.join("export")).unwrap();
+    let o = run(&["--model", "ggx"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stdout(&o).contains("== export\n"));
+    assert!(copy.join("export/gltf/material.gltf").exists());
+}
+
+#[test]
+fn run_refuses_a_folder_holding_another_capture() {
+    let other = temp_dir().join("other");
+    std::fs::create_dir_all(&other).unwrap();
+    std::fs::write(other.join("notes.txt"), "mine").unwrap();
+    let cap = tiny_capture();
+    let o = svbrdf(&[
+        "run",
+        "--video",
+        cap.join("flash.mp4").to_str().unwrap(),
+        "--reference",
+        cap.join("reference.jpg").to_str().unwrap(),
+        "--out",
+        other.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert_eq!(e.lines().count(), 1, "{e}");
+    assert!(
+        e.contains("--overwrite") && e.contains(other.to_str().unwrap()),
+        "{e}"
+    );
+    assert_eq!(
+        std::fs::read_to_string(other.join("notes.txt")).unwrap(),
+        "mine"
+    );
+
+    let o = svbrdf(&[
+        "run",
+        "--video",
+        "/nonexistent/flash.mp4",
+        "--reference",
+        cap.join("reference.jpg").to_str().unwrap(),
+        "--out",
+        temp_dir().join("x").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("/nonexistent/flash.mp4"),
+        "{}",
+        stderr(&o)
+    );
+}
+
+#[test]
+fn gltf_export_passes_the_khronos_validator() {
+    let root = repo_root();
+    let validator = root.join("tools/node_modules/gltf-validator");
+    let node = Command::new("node").arg("--version").output().is_ok();
+    if skip_without(
+        "node + gltf-validator",
+        node && validator.exists(),
+        "run scripts/test-tools.sh",
+    ) {
+        return;
+    }
+    let gltf = tiny_run().join("export/gltf/material.gltf");
+    let o = Command::new("node")
+        .arg(root.join("scripts/validate-gltf.mjs"))
+        .arg(&gltf)
+        .output()
+        .unwrap();
+    let report: serde_json::Value = serde_json::from_slice(&o.stdout)
+        .unwrap_or_else(|e| panic!("validator output: {e}: {}", stderr(&o)));
+    let issues = &report["issues"];
+    assert_eq!(issues["numErrors"], 0, "{issues:#}");
+    assert_eq!(issues["numWarnings"], 0, "{issues:#}");
+    assert!(o.status.success());
+    let used = report["info"]["extensionsUsed"].to_string();
+    assert!(used.contains("KHR_materials_specular") && used.contains("KHR_materials_anisotropy"));
+    // The validator reads the PNGs' own colour chunks: colours sRGB, data linear.
+    for r in report["info"]["resources"].as_array().unwrap() {
+        let uri = r["uri"].as_str().unwrap_or("");
+        let want = if uri.contains("color") {
+            "srgb"
+        } else {
+            "linear"
+        };
+        if uri.ends_with(".png") {
+            assert_eq!(r["image"]["transfer"], want, "{uri}");
+        }
+    }
+}
+
+#[test]
+fn mitsuba_scene_renders_with_the_stock_package() {
+    let python = std::env::var_os("SVBRDF_PYTHON")
+        .map(std::path::PathBuf::from)
+        .unwrap_or_else(|| repo_root().join(".venv-tools/bin/python"));
+    let has = python.exists()
+        && Command::new(&python)
+            .args(["-c", "import mitsuba"])
+            .status()
+            .is_ok_and(|s| s.success());
+    if skip_without(
+        "the mitsuba Python package",
+        has,
+        "run scripts/test-tools.sh",
+    ) {
+        return;
+    }
+    let scene_dir = tiny_run().join("export/mitsuba");
+    let img = temp_dir().join("mitsuba.exr");
+    let o = Command::new(&python)
+        .arg(scene_dir.join("render.py"))
+        .args(["--spp", "4", "--width", "120", "--out"])
+        .arg(&img)
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "mitsuba: {}", stderr(&o));
+    let png = image::open(img.with_extension("png")).unwrap().to_rgb8();
+    assert_eq!(png.width(), 120);
+    // The material (reddish leather-like texture on a grey background) is visible: the
+    // render is neither black nor one flat colour.
+    let px: Vec<[u8; 3]> = png.pixels().map(|p| p.0).collect();
+    let mean = px.iter().map(|p| f64::from(p[0])).sum::<f64>() / px.len() as f64;
+    let distinct: std::collections::BTreeSet<[u8; 3]> = px.iter().copied().collect();
+    assert!(
+        mean > 10.0 && distinct.len() > 50,
+        "mean {mean}, {} colours",
+        distinct.len()
+    );
+}
