@@ -299,44 +299,16 @@ pub fn fit_accuracy(
             &truth,
         );
         if let Some(dir) = pictures {
-            std::fs::create_dir_all(dir)?;
-            let mut diffuse = svbrdf_core::image::ImageF32::new(grid.width, grid.height, 3);
-            for (px, p) in diffuse.data.chunks_exact_mut(3).zip(&maps.params) {
-                for (v, d) in px.iter_mut().zip(p.rho_d) {
-                    *v = (acc.albedo_scale * d) as f32;
-                }
-            }
-            svbrdf_core::maps::write_png(
-                &dir.join(format!("diffuse_refine_{refine}.png")),
-                &holdout_picture(&grid, &diffuse, &truth.grid, &truth.diffuse),
-                svbrdf_core::maps::Encoding::Srgb,
-                svbrdf_core::maps::PngDepth::Eight,
-                &[(
-                    "meaning",
-                    "diffuse albedo: truth | fit x global scale | 4 x |difference|, linear".into(),
-                )],
+            truth_pictures(
+                dir,
+                &grid,
+                &maps.params,
+                cfg.model,
+                summary.light_intensity,
+                &acc,
+                &truth,
+                &format!("_refine_{refine}"),
             )?;
-            for (k, (img, light, camera)) in truth.holdout.iter().enumerate() {
-                let ours = svbrdf_fit::render::relight(
-                    &grid,
-                    &maps.params,
-                    cfg.model.model(),
-                    summary.light_intensity,
-                    *light,
-                    *camera,
-                );
-                let pic = holdout_picture(&grid, &ours, &truth.grid, img);
-                svbrdf_core::maps::write_png(
-                    &dir.join(format!("holdout_{k:02}_refine_{refine}.png")),
-                    &pic,
-                    svbrdf_core::maps::Encoding::Srgb,
-                    svbrdf_core::maps::PngDepth::Eight,
-                    &[(
-                        "meaning",
-                        "held-out light: truth | fit | 4 x |difference|, linear radiance".into(),
-                    )],
-                )?;
-            }
         }
         out.push(json!({
             "bench": "fit_accuracy",
@@ -362,6 +334,60 @@ pub fn fit_accuracy(
 
 /// Truth, fit and four times their absolute difference side by side, on the fit's
 /// grid, at most 600 pixels wide per panel.
+/// Ground-truth comparison pictures of fitted maps: the diffuse albedo and every
+/// held-out light, each as truth | fit | 4 x |difference| (sRGB PNG).
+#[allow(clippy::too_many_arguments)]
+pub fn truth_pictures(
+    dir: &std::path::Path,
+    grid: &svbrdf_core::plane::PlaneGrid,
+    params: &[svbrdf_core::brdf::BrdfParams],
+    model: ModelKind,
+    light_intensity: [f64; 3],
+    acc: &svbrdf_fit::evaluate::Accuracy,
+    truth: &svbrdf_fit::evaluate::Truth,
+    suffix: &str,
+) -> Result<()> {
+    std::fs::create_dir_all(dir)?;
+    let mut diffuse = svbrdf_core::image::ImageF32::new(grid.width, grid.height, 3);
+    for (px, p) in diffuse.data.chunks_exact_mut(3).zip(params) {
+        for (v, d) in px.iter_mut().zip(p.rho_d) {
+            *v = (acc.albedo_scale * d) as f32;
+        }
+    }
+    svbrdf_core::maps::write_png(
+        &dir.join(format!("diffuse{suffix}.png")),
+        &holdout_picture(grid, &diffuse, &truth.grid, &truth.diffuse),
+        svbrdf_core::maps::Encoding::Srgb,
+        svbrdf_core::maps::PngDepth::Eight,
+        &[(
+            "meaning",
+            "diffuse albedo: truth | fit x global scale | 4 x |difference|, linear".into(),
+        )],
+    )?;
+    for (k, (img, light, camera)) in truth.holdout.iter().enumerate() {
+        let ours = svbrdf_fit::render::relight(
+            grid,
+            params,
+            model.model(),
+            light_intensity,
+            *light,
+            *camera,
+        );
+        let pic = holdout_picture(grid, &ours, &truth.grid, img);
+        svbrdf_core::maps::write_png(
+            &dir.join(format!("holdout_{k:02}{suffix}.png")),
+            &pic,
+            svbrdf_core::maps::Encoding::Srgb,
+            svbrdf_core::maps::PngDepth::Eight,
+            &[(
+                "meaning",
+                "held-out light: truth | fit | 4 x |difference|, linear radiance".into(),
+            )],
+        )?;
+    }
+    Ok(())
+}
+
 fn holdout_picture(
     grid: &svbrdf_core::plane::PlaneGrid,
     ours: &svbrdf_core::image::ImageF32,

@@ -271,7 +271,8 @@ pub fn print_timings(timings: &[(String, f64)]) {
     }
 }
 
-/// The main job: synthesize a small capture, align it, and compare with ground truth.
+/// The main job: synthesize a small capture, run the whole pipeline on it (align, fit,
+/// export, report) and compare every stage with the ground truth.
 fn run_demo(a: &DemoArgs) -> Result<()> {
     let cfg = SynthConfig::tiny();
     let capture = a.out.join("capture");
@@ -282,26 +283,23 @@ fn run_demo(a: &DemoArgs) -> Result<()> {
     let s = run_synth(&cfg, &capture, true)?;
     print_summary(&s);
     println!();
-    println!("== aligning the video to the markers' plane");
-    let args = AlignArgs {
+    let run_args = run_cmd::RunArgs {
         video: capture.join("flash.mp4"),
         reference: capture.join("reference.jpg"),
         camera: Some(capture.join("camera.json")),
-        out: a.out.join("aligned"),
+        out: a.out.join("run"),
         region: None,
         px_per_cm: Some(cfg.map_px_per_cm),
-        fine_long_side: None,
-        fine_features: None,
-        fine_min_inliers: None,
-        fine_inlier_px: None,
-        subframes: None,
-        all_pairs: false,
+        model: "ward".into(),
+        fit_config: None,
+        no_refine: false,
+        seed: None,
+        force: true,
         overwrite: true,
     };
-    run_align(&args)?;
-    println!();
+    let outcome = run_cmd::run_pipeline(&run_args)?;
     println!("== accuracy against the simulator's ground truth");
-    let acc = bench::align_accuracy(&args.out, &capture)?;
+    let acc = bench::align_accuracy(&run_args.out.join(run_cmd::ALIGNED), &capture)?;
     let get = |k: &str| acc[k].as_f64().unwrap_or(f64::NAN);
     println!(
         "alignment error: median {:.3} px, 95th percentile {:.3} px (output pixels at {} px/cm)",
@@ -314,23 +312,8 @@ fn run_demo(a: &DemoArgs) -> Result<()> {
         get("camera_error_mm_median"),
         get("flash_error_mm_median")
     );
-    println!();
-    println!("== fitting svBRDF maps to the aligned frames");
-    let fit_args = fit_cmd::FitArgs {
-        capture: args.out.clone(),
-        out: a.out.join("maps"),
-        config: None,
-        model: "ward".into(),
-        px_per_cm: None,
-        light_intensity: None,
-        no_refine: false,
-        seed: None,
-        overwrite: true,
-    };
-    fit_cmd::run_fit(&fit_args)?;
-    println!();
-    println!("== map accuracy against the simulator's ground truth");
-    let m = bench::maps_accuracy(&fit_args.out, &capture)?;
+    let maps_dir = run_args.out.join(run_cmd::MAPS);
+    let m = bench::maps_accuracy(&maps_dir, &capture)?;
     println!(
         "diffuse albedo RMSE {:.3} (after one global scale {:.3}: the flash intensity is unknown to the fit)",
         m.diffuse_rmse, m.albedo_scale
@@ -344,11 +327,33 @@ fn run_demo(a: &DemoArgs) -> Result<()> {
         m.relight_relative_rmse.len(),
         100.0 * m.relight_relative_rmse_mean
     );
+    // Ground-truth pictures and figures go into the report.
+    let truth_dir = run_args.out.join("truth");
+    let loaded = svbrdf_fit::output::read_maps(&maps_dir)?;
+    let model = run_cmd::load_maps(&maps_dir)?.model;
+    bench::truth_pictures(
+        &truth_dir,
+        &loaded.grid,
+        &loaded.params,
+        model,
+        loaded.manifest.summary.light_intensity,
+        &m,
+        &bench::load_truth(&capture)?,
+        "",
+    )?;
+    let mut figures = serde_json::to_value(&m)?;
+    for k in [
+        "align_error_px_median",
+        "align_error_px_p95",
+        "camera_error_mm_median",
+    ] {
+        figures[k] = acc[k].clone();
+    }
+    svbrdf_core::fsutil::write_json(&truth_dir.join("accuracy.json"), &figures)?;
+    let maps = run_cmd::load_maps(&maps_dir)?;
+    svbrdf_export::report::write_report(&run_args.out, Some(&maps))?;
     println!();
-    println!(
-        "look at {0}/aligned/panorama.png, {0}/maps/maps/*.png and {0}/maps/rerender.png",
-        a.out.display()
-    );
+    run_cmd::print_run_summary(&outcome)?;
     Ok(())
 }
 

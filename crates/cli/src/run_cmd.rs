@@ -315,6 +315,11 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         println!();
     }
     write_record(&record_path, &record)?;
+    println!("== report");
+    let maps = load_maps(&a.out.join(MAPS))?;
+    let report = svbrdf_export::report::write_report(&a.out, Some(&maps))?;
+    println!("wrote {}", report.display());
+    println!();
     Ok(RunOutcome {
         out: a.out.clone(),
         record,
@@ -334,7 +339,9 @@ pub fn print_run_summary(o: &RunOutcome) -> Result<()> {
     let s = &fit["summary"];
     println!(
         "clusters: {} initial, {} final; model {}",
-        s["initial_clusters"], s["final_clusters"], fit["model"]
+        s["initial_clusters"],
+        s["final_clusters"],
+        fit["model"].as_str().unwrap_or("?")
     );
     let secs: Vec<String> = ["align", "fit", "export"]
         .iter()

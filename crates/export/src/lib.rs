@@ -17,6 +17,8 @@ pub mod convert;
 pub mod gltf;
 pub mod mesh;
 pub mod mitsuba;
+pub mod render;
+pub mod report;
 
 use std::path::{Path, PathBuf};
 

@@ -200,6 +200,9 @@ pub struct ClusterInfo {
     pub pixels: usize,
     /// Split level (0: an initial k-means cluster).
     pub depth: usize,
+    /// The initial (k-means) cluster it was split from.
+    #[serde(default)]
+    pub initial: u32,
     /// The cluster's BRDF (before per-pixel refinement).
     pub params: BrdfParams,
     /// RMS error over its pixels' observations (at most `max_split_observations` per
@@ -470,15 +473,16 @@ pub fn fit(
 
     let t = Instant::now();
     progress.stage("cluster fits", init.k as u64);
-    let leaves: Vec<tree::Leaf> = members
+    let (roots, leaves): (Vec<u32>, Vec<tree::Leaf>) = members
         .into_par_iter()
-        .filter(|m| !m.is_empty())
-        .flat_map_iter(|m| {
+        .enumerate()
+        .filter(|(_, m)| !m.is_empty())
+        .flat_map_iter(|(k, m)| {
             let l = tree::fit_cluster(&ctx, m);
             progress.advance(1);
-            l
+            l.into_iter().map(move |leaf| (k as u32, leaf))
         })
-        .collect();
+        .unzip();
     progress.finish();
     timings.push(("cluster fits".to_string(), t.elapsed().as_secs_f64()));
 
@@ -561,6 +565,7 @@ pub fn fit(
                 .enumerate()
                 .map(|(i, l)| ClusterInfo {
                     id: i as u32,
+                    initial: roots[i],
                     pixels: l.pixels.len(),
                     depth: l.depth,
                     params: l.params,

@@ -8,6 +8,7 @@
 //! OUT/maps/normal.exr     tangent-space unit normal x, y, z       (+ .png, linear 8-bit, (n + 1) / 2)
 //! OUT/maps/average.exr    mean observed colour, linear RGB        (+ .png, sRGB 8-bit)
 //! OUT/maps/clusters.png   final clusters in random colours (sRGB); clusters.exr holds ids
+//! OUT/maps/initial_clusters.png  the initial k-means clusters in random colours (sRGB)
 //! OUT/maps/residual.exr   RMS re-rendering error per pixel, linear (+ .png, linear 16-bit, x10)
 //! OUT/maps/coverage.exr   observations per pixel (0: filled)      (+ .png, 8-bit, 0 black)
 //! OUT/rerender.png        observed frames (top) over their re-rendering (bottom), sRGB
@@ -264,6 +265,32 @@ pub fn write_outputs(
             ("meaning", "final clusters, random colours".into()),
         ],
     )?;
+    // Initial (k-means) clusters, the starting point of the recursive splits.
+    let k0 = maps.clusters.iter().map(|c| c.initial).max().unwrap_or(0) as usize + 1;
+    let initial_colours: Vec<[f32; 3]> = (0..k0)
+        .map(|_| [0; 3].map(|_| rng.random_range(0.05f32..0.9)))
+        .collect();
+    let initial_of = |i: usize| {
+        maps.clusters
+            .get(maps.cluster[i] as usize)
+            .map_or(0, |c| c.initial as usize)
+    };
+    write_png(
+        &mdir.join("initial_clusters.png"),
+        &plane(maps, |i| initial_colours[initial_of(i)]),
+        Encoding::Srgb,
+        PngDepth::Eight,
+        &[
+            ("map", "initial_clusters".into()),
+            ("meaning", "initial k-means clusters, random colours".into()),
+        ],
+    )?;
+    files.push(MapFile {
+        file: "maps/initial_clusters.png".into(),
+        encoding: Encoding::Srgb,
+        meaning: "initial k-means clusters in random colours (ids: clusters.json, field initial)"
+            .into(),
+    });
     files.push(MapFile {
         file: "maps/clusters.exr".into(),
         encoding: Encoding::Linear,

@@ -201,3 +201,33 @@ fn mitsuba_scene_renders_with_the_stock_package() {
         distinct.len()
     );
 }
+
+#[test]
+fn report_loads_in_chromium_with_every_image() {
+    let report = tiny_run().join("report.html");
+    let html = std::fs::read_to_string(&report).unwrap();
+    // Self-contained: no external scripts, styles or images.
+    assert!(!html.contains("src=\"http") && !html.contains("href=\"http"));
+    let Some(dom) = crate::util::chromium_dom(&format!("file://{}", report.display()), 5000) else {
+        return;
+    };
+    use crate::util::body_attribute;
+    assert_eq!(body_attribute(&dom, "data-error"), None, "script error");
+    let expected = body_attribute(&dom, "data-images-expected").unwrap();
+    let n: usize = expected.parse().unwrap();
+    // Renders (4), maps (9), geometry (3), re-rendering strip (1).
+    assert!(n >= 17, "{n} images");
+    assert_eq!(
+        body_attribute(&dom, "data-images-loaded").as_deref(),
+        Some(format!("{n}/{n}").as_str()),
+        "not every image decoded"
+    );
+    for section in [
+        "summary", "renders", "maps", "geometry", "rerender", "files",
+    ] {
+        assert!(
+            dom.contains(&format!("<section id=\"{section}\"")),
+            "{section}"
+        );
+    }
+}

@@ -90,3 +90,50 @@ pub fn tiny_run() -> &'static Path {
         out
     })
 }
+
+/// Headless Chromium's DOM after loading `url` (scripts run for up to `budget_ms` of
+/// virtual time), or None when Chromium is not installed.
+pub fn chromium_dom(url: &str, budget_ms: u32) -> Option<String> {
+    let has = Command::new("chromium")
+        .arg("--version")
+        .output()
+        .is_ok_and(|o| o.status.success());
+    if skip_without(
+        "chromium",
+        has,
+        "apt-get install chromium, or run scripts/test-tools.sh",
+    ) {
+        return None;
+    }
+    let profile = temp_dir().join("chromium-profile");
+    let o = Command::new("timeout")
+        .args([
+            "120",
+            "chromium",
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+        ])
+        .args([
+            "--disable-background-networking",
+            "--no-first-run",
+            "--enable-unsafe-swiftshader",
+        ])
+        .arg(format!("--user-data-dir={}", profile.display()))
+        .arg(format!("--virtual-time-budget={budget_ms}"))
+        .arg("--dump-dom")
+        .arg(url)
+        .output()
+        .expect("failed to start chromium");
+    assert!(o.status.success(), "chromium failed: {}", stderr(&o));
+    Some(String::from_utf8_lossy(&o.stdout).into_owned())
+}
+
+/// The value of attribute `name` on the page's `<body>` tag.
+pub fn body_attribute(dom: &str, name: &str) -> Option<String> {
+    let start = dom.find("<body")?;
+    let tag = &dom[start..start + dom[start..].find('>')?];
+    let key = format!("{name}=\"");
+    let i = tag.find(&key)? + key.len();
+    Some(tag[i..i + tag[i..].find('"')?].to_string())
+}

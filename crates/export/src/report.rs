@@ -1,0 +1,590 @@
+//! `report.html`: one self-contained page about a run (every image embedded, no network,
+//! opens from disk). It shows whatever the run folder holds, so it works for a full
+//! `svbrdf run`, for a fit of an imported capture, and with or without ground truth:
+//!
+//! - `aligned/`: panorama, camera and flash trajectory, connectivity map, frames kept
+//!   and dropped, alignment timings;
+//! - `maps/`: every map, initial and final clusters, residual and coverage, the
+//!   re-rendering strip (input frames over their re-rendering) and per-frame errors;
+//! - `renders/` (written here): the fitted material on a sphere under three lights and
+//!   on its plane under an oblique point light, by [`crate::render`];
+//! - `truth/` (synthetic captures): `accuracy.json` and truth | fit | difference
+//!   pictures;
+//! - `run.json`: stage times; `export/`: links to the glTF and Mitsuba files.
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+use serde_json::Value;
+use svbrdf_core::fsutil::write_atomic;
+use svbrdf_core::geometry::Vec3;
+use svbrdf_core::image::ImageF32;
+use svbrdf_core::maps::{write_png, Encoding, PngDepth};
+use svbrdf_core::CoreError;
+
+use crate::{ExportError, MaterialMaps};
+
+/// File name of the report inside a run folder.
+pub const REPORT_FILE: &str = "report.html";
+/// Longest side of an embedded image, pixels (larger ones are shrunk for the page;
+/// the full-resolution files stay beside it).
+pub const MAX_EMBED_SIDE: u32 = 1024;
+
+fn escape(s: &str) -> String {
+    s.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+        .replace('"', "&quot;")
+}
+
+fn base64(bytes: &[u8]) -> String {
+    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut out = String::with_capacity(bytes.len().div_ceil(3) * 4);
+    for c in bytes.chunks(3) {
+        let n = (u32::from(c[0]) << 16)
+            | (u32::from(*c.get(1).unwrap_or(&0)) << 8)
+            | u32::from(*c.get(2).unwrap_or(&0));
+        for k in 0..4 {
+            if k <= c.len() {
+                out.push(T[(n >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                out.push('=');
+            }
+        }
+    }
+    out
+}
+
+/// A PNG as a data URI, shrunk to [`MAX_EMBED_SIDE`] when larger.
+fn data_uri(path: &Path) -> Result<String, ExportError> {
+    let bytes = std::fs::read(path).map_err(|e| CoreError::io(path, e))?;
+    let (w, h) = image::ImageReader::new(std::io::Cursor::new(&bytes))
+        .with_guessed_format()
+        .map_err(|e| CoreError::io(path, e))?
+        .into_dimensions()
+        .map_err(|e| CoreError::format(path, e.to_string()))?;
+    let bytes = if w.max(h) > MAX_EMBED_SIDE {
+        let img =
+            image::load_from_memory(&bytes).map_err(|e| CoreError::format(path, e.to_string()))?;
+        let small = img.thumbnail(MAX_EMBED_SIDE, MAX_EMBED_SIDE);
+        let mut out = Vec::new();
+        small
+            .write_to(&mut std::io::Cursor::new(&mut out), image::ImageFormat::Png)
+            .map_err(|e| CoreError::format(path, e.to_string()))?;
+        out
+    } else {
+        bytes
+    };
+    Ok(format!("data:image/png;base64,{}", base64(&bytes)))
+}
+
+fn read_json(path: &Path) -> Option<Value> {
+    svbrdf_core::fsutil::read_json(path).ok()
+}
+
+/// The preview renders of [`crate::render`], written as sRGB PNGs into `dir`.
+pub fn write_renders(
+    maps: &MaterialMaps,
+    dir: &Path,
+) -> Result<Vec<(PathBuf, String)>, ExportError> {
+    std::fs::create_dir_all(dir).map_err(|e| CoreError::io(dir, e))?;
+    let mut out = Vec::new();
+    let views: [(&str, Vec3, &str); 3] = [
+        (
+            "sphere_left.png",
+            Vec3::new(-1.0, 0.6, 0.8),
+            "light from the upper left",
+        ),
+        (
+            "sphere_front.png",
+            Vec3::new(0.1, 0.2, 1.0),
+            "light from the camera (as in the capture)",
+        ),
+        (
+            "sphere_grazing.png",
+            Vec3::new(1.0, 0.1, 0.15),
+            "grazing light from the right",
+        ),
+    ];
+    for (name, light, what) in views {
+        let img = crate::render::sphere(maps, 384, light);
+        let p = dir.join(name);
+        save(&p, &img, &format!("fitted material on a sphere, {what}"))?;
+        out.push((p, format!("sphere, {what}")));
+    }
+    let img = crate::render::plane(maps, 768);
+    let p = dir.join("plane.png");
+    save(
+        &p,
+        &img,
+        "fitted material on its plane, oblique view, point light",
+    )?;
+    out.push((
+        p,
+        "the material's own plane, oblique view, point light from the upper left".into(),
+    ));
+    Ok(out)
+}
+
+fn save(path: &Path, img: &ImageF32, meaning: &str) -> Result<(), ExportError> {
+    write_png(
+        path,
+        img,
+        Encoding::Srgb,
+        PngDepth::Eight,
+        &[("meaning", meaning.into()), ("map", "render".into())],
+    )?;
+    Ok(())
+}
+
+/// Figures and images for the page, section by section.
+struct Page {
+    html: String,
+    images: usize,
+}
+
+impl Page {
+    fn section(&mut self, id: &str, title: &str, intro: &str) {
+        let _ = write!(self.html, "<section id=\"{id}\"><h2>{}</h2>", escape(title));
+        if !intro.is_empty() {
+            let _ = write!(self.html, "<p>{intro}</p>");
+        }
+    }
+
+    fn end(&mut self) {
+        self.html.push_str("</section>\n");
+    }
+
+    fn figures(&mut self, items: &[(PathBuf, String)], wide: bool) -> Result<(), ExportError> {
+        let class = if wide { "grid wide" } else { "grid" };
+        let _ = write!(self.html, "<div class=\"{class}\">");
+        for (p, caption) in items {
+            if !p.exists() {
+                continue;
+            }
+            let _ = write!(
+                self.html,
+                "<figure><img src=\"{}\" alt=\"{c}\"><figcaption>{c}</figcaption></figure>",
+                data_uri(p)?,
+                c = escape(caption)
+            );
+            self.images += 1;
+        }
+        self.html.push_str("</div>");
+        Ok(())
+    }
+
+    fn table(&mut self, rows: &[(String, String)]) {
+        self.html.push_str("<table>");
+        for (k, v) in rows {
+            let _ = write!(
+                self.html,
+                "<tr><th>{}</th><td>{}</td></tr>",
+                escape(k),
+                escape(v)
+            );
+        }
+        self.html.push_str("</table>");
+    }
+}
+
+fn num(v: &Value, digits: usize) -> String {
+    v.as_f64()
+        .map(|x| format!("{x:.digits$}"))
+        .unwrap_or_else(|| v.to_string())
+}
+
+fn timings(v: &Value) -> String {
+    v.as_array()
+        .map(|a| {
+            a.iter()
+                .map(|t| format!("{} {} s", t[0].as_str().unwrap_or("?"), num(&t[1], 1)))
+                .collect::<Vec<_>>()
+                .join(", ")
+        })
+        .unwrap_or_default()
+}
+
+/// Per-frame re-rendering error as an inline SVG bar chart.
+fn frame_chart(frames: &[Value]) -> String {
+    let (w, h) = (720.0, 160.0);
+    let vals: Vec<f64> = frames
+        .iter()
+        .map(|f| f["relative"].as_f64().unwrap_or(0.0))
+        .collect();
+    let max = vals.iter().copied().fold(1e-9, f64::max);
+    let bw = w / vals.len().max(1) as f64;
+    let mut s = format!(
+        "<svg class=\"chart\" viewBox=\"0 0 {w} {}\" role=\"img\" aria-label=\"per-frame error\">",
+        h + 20.0
+    );
+    for (i, v) in vals.iter().enumerate() {
+        let bh = h * v / max;
+        let _ = write!(
+            s,
+            "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{:.1}\" height=\"{bh:.1}\"><title>frame {}: {:.1}%</title></rect>",
+            i as f64 * bw,
+            h - bh,
+            (bw - 1.0).max(0.5),
+            frames[i]["frame"],
+            100.0 * v
+        );
+    }
+    let _ = write!(
+        s,
+        "<text x=\"0\" y=\"{}\">0</text><text x=\"{w}\" y=\"12\" text-anchor=\"end\">max {:.1}% of the frame's mean</text></svg>",
+        h + 16.0,
+        100.0 * max
+    );
+    s
+}
+
+/// Write `report.html` (and `renders/` when `maps` are given) into the run folder
+/// `dir`. Returns the report's path.
+pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, ExportError> {
+    let mut page = Page {
+        html: String::new(),
+        images: 0,
+    };
+    let align = read_json(&dir.join("aligned/align.json"));
+    let fit = read_json(&dir.join("maps/fit.json"));
+    let run = read_json(&dir.join("run.json"));
+    let truth = read_json(&dir.join("truth/accuracy.json"));
+
+    // Summary.
+    page.section("summary", "Summary", "");
+    let mut rows = Vec::new();
+    if let Some(r) = &run {
+        rows.push((
+            "video".into(),
+            r["inputs"]["video"]["path"]
+                .as_str()
+                .unwrap_or("?")
+                .to_string(),
+        ));
+        let st: Vec<String> = ["align", "fit", "export"]
+            .iter()
+            .filter(|n| r["stages"][**n].is_object())
+            .map(|n| format!("{n} {} s", num(&r["stages"][*n]["seconds"], 1)))
+            .collect();
+        rows.push(("stage times".into(), st.join(", ")));
+    }
+    if let Some(a) = &align {
+        let f = &a["summary"]["frames"];
+        rows.push((
+            "frames".into(),
+            format!(
+                "{} decoded, {} kept; dropped: {} blurry, {} disconnected, {} unregistered, {} outside the markers",
+                f["decoded"], f["kept"], f["blurry"], f["disconnected"], f["unregistered"], f["outside"]
+            ),
+        ));
+        rows.push((
+            "alignment".into(),
+            format!(
+                "global solve residual rms {} cm, median {} cm; {} frames anchored to the reference photo",
+                num(&a["summary"]["solve_rms_cm"], 4),
+                num(&a["summary"]["solve_median_cm"], 4),
+                a["summary"]["reference_anchored"]
+            ),
+        ));
+        rows.push((
+            "alignment timings".into(),
+            timings(&a["summary"]["timings"]),
+        ));
+    }
+    if let Some(f) = &fit {
+        let s = &f["summary"];
+        rows.push((
+            "maps".into(),
+            format!(
+                "{} x {} pixels at {} px/cm, model {}, albedo units {}",
+                f["width"],
+                f["height"],
+                num(&f["px_per_cm"], 1),
+                f["model"].as_str().unwrap_or("?"),
+                f["albedo_units"].as_str().unwrap_or("?")
+            ),
+        ));
+        rows.push((
+            "clusters".into(),
+            format!(
+                "{} initial (k-means elbow), {} final after recursive splitting, deepest level {}",
+                s["initial_clusters"], s["final_clusters"], s["max_depth"]
+            ),
+        ));
+        rows.push((
+            "observations".into(),
+            format!(
+                "{} ({} with a clipped channel); {} of {} pixels observed",
+                s["observations"], s["clipped_observations"], s["covered_pixels"], s["pixels"]
+            ),
+        ));
+        rows.push((
+            "re-rendering error".into(),
+            format!(
+                "linear RMS {} with clusters only, {} final",
+                num(&s["rmse_clusters"], 4),
+                num(&s["rmse_final"], 4)
+            ),
+        ));
+        rows.push(("fit timings".into(), timings(&s["timings"])));
+    }
+    page.table(&rows);
+    page.end();
+
+    // Renders.
+    if let Some(m) = maps {
+        let renders = write_renders(m, &dir.join("renders"))?;
+        page.section(
+            "renders",
+            "Renders",
+            "The fitted model itself (before conversion for other renderers), rendered by svbrdf's CPU renderer; sRGB.",
+        );
+        page.figures(&renders, false)?;
+        page.end();
+    }
+
+    // Maps.
+    let md = dir.join("maps/maps");
+    if md.exists() {
+        page.section(
+            "maps",
+            "Maps",
+            "Colour maps are shown sRGB-encoded (the EXR files beside them are linear); roughness, normal, residual and coverage are linear data. Top of each map = +y on the plane.",
+        );
+        let items: Vec<(PathBuf, String)> = [
+            ("diffuse.png", "diffuse albedo rho_d (sRGB)"),
+            ("specular.png", "specular albedo rho_s (sRGB)"),
+            (
+                "roughness.png",
+                "roughness: R = alpha_x, G = alpha_y (linear)",
+            ),
+            (
+                "normal.png",
+                "normal, tangent space, +Y up (linear, 0.5 n + 0.5)",
+            ),
+            ("average.png", "average observed colour (sRGB)"),
+            ("initial_clusters.png", "initial clusters (k-means)"),
+            ("clusters.png", "final clusters (after splitting)"),
+            (
+                "residual.png",
+                "per-pixel re-rendering RMS error (linear, x10)",
+            ),
+            (
+                "coverage.png",
+                "observations per pixel (black: none, filled)",
+            ),
+        ]
+        .iter()
+        .map(|(f, c)| (md.join(f), c.to_string()))
+        .collect();
+        page.figures(&items, false)?;
+        page.end();
+    }
+
+    // Geometry.
+    let ad = dir.join("aligned");
+    if ad.exists() {
+        page.section(
+            "geometry",
+            "Geometry",
+            "From the alignment stage (paper section 3.1).",
+        );
+        let items: Vec<(PathBuf, String)> = [
+            (
+                "panorama.png",
+                "average-colour panorama of the aligned frames",
+            ),
+            (
+                "trajectory.png",
+                "camera (and flash) trajectory over the plane",
+            ),
+            (
+                "connectivity.png",
+                "connectivity map: frame pairs that overlap",
+            ),
+        ]
+        .iter()
+        .map(|(f, c)| (ad.join(f), c.to_string()))
+        .collect();
+        page.figures(&items, false)?;
+        page.end();
+    }
+
+    // Re-rendering.
+    if let Some(f) = &fit {
+        page.section(
+            "rerender",
+            "Input frames and their re-rendering",
+            "Top: observed frames resampled onto the plane; bottom: the same views rendered from the fitted maps (the paper's supplemental comparison). Below: error per input frame, relative to its mean radiance.",
+        );
+        page.figures(
+            &[(
+                dir.join("maps/rerender.png"),
+                "observed (top) vs re-rendered (bottom)".into(),
+            )],
+            true,
+        )?;
+        if let Some(frames) = f["summary"]["frames"].as_array() {
+            page.html.push_str(&frame_chart(frames));
+        }
+        page.end();
+    }
+
+    // Ground truth.
+    if let Some(t) = &truth {
+        page.section(
+            "truth",
+            "Against the simulator's ground truth",
+            "Diffuse albedo after one global scale factor (the flash intensity is unknown to the fit); relighting under held-out oblique lights as RMSE of linear radiance divided by the mean.",
+        );
+        let mut rows = vec![
+            (
+                "diffuse albedo RMSE".to_string(),
+                num(&t["diffuse_rmse"], 4),
+            ),
+            (
+                "global albedo scale".to_string(),
+                num(&t["albedo_scale"], 4),
+            ),
+            (
+                "normal error, mean / median (deg)".to_string(),
+                format!(
+                    "{} / {}",
+                    num(&t["normal_mean_deg"], 2),
+                    num(&t["normal_median_deg"], 2)
+                ),
+            ),
+            (
+                "relighting error, mean".to_string(),
+                format!(
+                    "{}%",
+                    num(
+                        &(t["relight_relative_rmse_mean"].as_f64().unwrap_or(f64::NAN) * 100.0)
+                            .into(),
+                        1
+                    )
+                ),
+            ),
+        ];
+        if let Some(a) = t.get("align_error_px_median") {
+            rows.push(("alignment error, median (output px)".into(), num(a, 3)));
+        }
+        page.table(&rows);
+        let td = dir.join("truth");
+        let mut pics: Vec<(PathBuf, String)> = std::fs::read_dir(&td)
+            .map_err(|e| CoreError::io(&td, e))?
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|x| x == "png"))
+            .map(|p| {
+                let name = p
+                    .file_stem()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_default();
+                (p, format!("{name}: truth | fit | 4 x |difference|"))
+            })
+            .collect();
+        pics.sort();
+        page.figures(&pics, true)?;
+        page.end();
+    }
+
+    // Files.
+    page.section("files", "Files", "");
+    let mut rows = Vec::new();
+    for (what, rel) in [
+        ("glTF 2.0 (quad + sphere)", "export/gltf/material.gltf"),
+        ("Mitsuba 3 scene", "export/mitsuba/scene.xml"),
+        ("maps (EXR linear, PNG)", "maps/maps"),
+        ("fit manifest", "maps/fit.json"),
+        ("registered capture", "aligned/capture.json"),
+    ] {
+        if dir.join(rel).exists() {
+            rows.push((what.to_string(), rel.to_string()));
+        }
+    }
+    page.html.push_str("<ul>");
+    for (what, rel) in rows {
+        let _ = write!(
+            page.html,
+            "<li>{}: <a href=\"{r}\">{r}</a></li>",
+            escape(&what),
+            r = escape(&rel)
+        );
+    }
+    page.html.push_str("</ul>");
+    page.end();
+
+    let html = format!(
+        r##"<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8"><title>svbrdf report</title>
+<meta name="viewport" content="width=device-width, initial-scale=1">
+<style>
+body {{ font: 15px/1.45 system-ui, sans-serif; margin: 0 auto; max-width: 1200px; padding: 1em 2em; color: #222; background: #fafafa; }}
+h1 {{ margin-bottom: 0.2em; }} h2 {{ border-bottom: 1px solid #ccc; padding-bottom: 0.2em; margin-top: 1.6em; }}
+table {{ border-collapse: collapse; }} th {{ text-align: left; padding: 0.2em 1em 0.2em 0; vertical-align: top; white-space: nowrap; }} td {{ padding: 0.2em 0; }}
+.grid {{ display: grid; grid-template-columns: repeat(auto-fill, minmax(260px, 1fr)); gap: 1em; }}
+.grid.wide {{ grid-template-columns: 1fr; }}
+figure {{ margin: 0; }} img {{ width: 100%; image-rendering: auto; background: #fff; border: 1px solid #ddd; }}
+figcaption {{ font-size: 13px; color: #555; }}
+.chart rect {{ fill: #4a7ab8; }} .chart text {{ font-size: 11px; fill: #555; }}
+nav a {{ margin-right: 1em; }}
+</style></head>
+<body data-images-expected="{n}">
+<h1>svbrdf report</h1>
+<nav><a href="#summary">summary</a><a href="#renders">renders</a><a href="#maps">maps</a><a href="#geometry">geometry</a><a href="#rerender">re-rendering</a><a href="#truth">ground truth</a><a href="#files">files</a></nav>
+{body}
+<footer><p>Written by svbrdf {version}. Colour conventions: docs/CONVENTIONS.md.</p></footer>
+<script>
+// Self-check used by the browser test: how many images decoded, and any script error.
+window.addEventListener("error", (e) => document.body.setAttribute("data-error", String(e.message)));
+window.addEventListener("load", () => {{
+  const imgs = Array.from(document.images);
+  const ok = imgs.filter((i) => i.complete && i.naturalWidth > 0).length;
+  document.body.setAttribute("data-images-loaded", ok + "/" + imgs.length);
+}});
+</script>
+</body></html>
+"##,
+        n = page.images,
+        body = page.html,
+        version = env!("CARGO_PKG_VERSION"),
+    );
+    let path = dir.join(REPORT_FILE);
+    write_atomic(&path, |w| {
+        use std::io::Write;
+        w.write_all(html.as_bytes())
+            .map_err(|e| CoreError::io(&path, e))
+    })?;
+    Ok(path)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn base64_matches_the_rfc_examples() {
+        for (i, o) in [
+            ("", ""),
+            ("f", "Zg=="),
+            ("fo", "Zm8="),
+            ("foo", "Zm9v"),
+            ("foob", "Zm9vYg=="),
+            ("fooba", "Zm9vYmE="),
+            ("foobar", "Zm9vYmFy"),
+        ] {
+            assert_eq!(base64(i.as_bytes()), o);
+        }
+    }
+
+    #[test]
+    fn report_embeds_renders_and_escapes() {
+        let tmp = tempfile::tempdir().expect("tmp");
+        let maps = crate::gltf::tests::checker(svbrdf_core::brdf::ModelKind::Ward);
+        let p = write_report(tmp.path(), Some(&maps)).expect("report");
+        let html = std::fs::read_to_string(p).expect("read");
+        assert_eq!(html.matches("data:image/png;base64,").count(), 4);
+        assert!(html.contains("data-images-expected=\"4\""));
+        assert_eq!(escape("<a & \"b\">"), "&lt;a &amp; &quot;b&quot;&gt;");
+    }
+}
