@@ -42,6 +42,8 @@ enum Command {
     Run(run_cmd::RunArgs),
     /// Export fitted maps as a glTF 2.0 material and a Mitsuba 3 scene.
     Export(run_cmd::ExportArgs),
+    /// Show the exported material in a local web page (three.js) with a light you drag.
+    View(view::ViewArgs),
     /// Measure speed and accuracy and print one JSON object per line.
     Bench(bench::BenchArgs),
 }
@@ -373,6 +375,7 @@ fn print_summary(s: &svbrdf_synth::SynthSummary) {
 
 mod alloc;
 mod run_cmd;
+mod view;
 
 fn main() -> ExitCode {
     // `svbrdf bench | head -1` closes our stdout early; Rust then panics inside
@@ -400,6 +403,7 @@ fn main() -> ExitCode {
         Command::Fit(a) => fit_cmd::run_fit(&a).map(|_| ()),
         Command::Run(a) => run_cmd::run_pipeline(&a).and_then(|o| run_cmd::print_run_summary(&o)),
         Command::Export(a) => run_cmd::run_export(&a).map(|_| ()),
+        Command::View(a) => view::run_view(&a),
         Command::Bench(a) => bench::run(&a),
     };
     match result {

@@ -231,3 +231,102 @@ fn report_loads_in_chromium_with_every_image() {
         );
     }
 }
+
+/// Kills the server when the test ends, pass or fail.
+struct Server(std::process::Child);
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+#[test]
+fn viewer_serves_the_gltf_and_the_light_follows_the_pointer() {
+    use std::io::BufRead;
+    let run = tiny_run();
+    // A busy port: the viewer must pick another one and say so.
+    let busy = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let busy_port = busy.local_addr().unwrap().port();
+    let child = Command::new(env!("CARGO_BIN_EXE_svbrdf"))
+        .args([
+            "view",
+            run.to_str().unwrap(),
+            "--port",
+            &busy_port.to_string(),
+        ])
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut server = Server(child);
+    let stdout = server.0.stdout.take().unwrap();
+    let mut first = String::new();
+    std::io::BufReader::new(stdout)
+        .read_line(&mut first)
+        .unwrap();
+    let url = first
+        .split_whitespace()
+        .find(|w| w.starts_with("http://127.0.0.1:"))
+        .unwrap_or_else(|| panic!("no URL in {first:?}"))
+        .to_string();
+    assert!(
+        !url.contains(&format!(":{busy_port}/")),
+        "{url} uses the busy port"
+    );
+    // Only files of the export folder are served.
+    let port: u16 = url
+        .trim_end_matches('/')
+        .rsplit(':')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    let get = |path: &str| {
+        use std::io::{Read, Write};
+        let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
+        write!(s, "GET {path} HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
+        let mut r = String::new();
+        let _ = s.read_to_string(&mut r);
+        r.lines().next().unwrap_or("").to_string()
+    };
+    assert!(get("/gltf/material.gltf").contains("200"));
+    assert!(get("/gltf/../run.json").contains("404"));
+    assert!(get("/three/three.module.min.js").contains("200"));
+
+    let Some(dom) = crate::util::chromium_dom(&format!("{url}?selftest=1"), 15000) else {
+        return;
+    };
+    use crate::util::body_attribute;
+    assert_eq!(body_attribute(&dom, "data-error"), None, "page error");
+    assert_eq!(
+        body_attribute(&dom, "data-loaded").as_deref(),
+        Some("1"),
+        "{dom}"
+    );
+    assert_eq!(
+        body_attribute(&dom, "data-material").as_deref(),
+        Some("MeshPhysicalMaterial")
+    );
+    let maps = body_attribute(&dom, "data-maps").unwrap();
+    for m in ["base", "normal", "roughness", "specularColor", "anisotropy"] {
+        assert!(
+            maps.contains(m),
+            "three.js did not load the {m} map: {maps}"
+        );
+    }
+    let mean: f64 = body_attribute(&dom, "data-mean-before")
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(mean > 5.0, "the page rendered black ({mean})");
+    let change: f64 = body_attribute(&dom, "data-pixel-change")
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(
+        change > 0.5,
+        "moving the light changed the image by only {change}"
+    );
+}

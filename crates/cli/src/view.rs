@@ -1,0 +1,153 @@
+//! `svbrdf view`: a local web page showing the glTF export in three.js, served from
+//! the binary (page and three.js are embedded; nothing is fetched from the web).
+//! Loopback only; a busy or unspecified port falls back to a free one.
+
+use std::io::{BufRead, BufReader, Write};
+use std::net::{TcpListener, TcpStream};
+use std::path::{Path, PathBuf};
+
+use anyhow::{Context, Result};
+use clap::Args;
+
+#[derive(Args, Clone)]
+pub struct ViewArgs {
+    /// A run folder (holding export/gltf/material.gltf), or a folder holding
+    /// material.gltf itself.
+    pub dir: PathBuf,
+    /// Port on 127.0.0.1 (default: any free port; a busy port falls back to a free one).
+    #[arg(long)]
+    pub port: Option<u16>,
+}
+
+/// Embedded files: (URL path, content type, bytes).
+const ASSETS: &[(&str, &str, &[u8])] = &[
+    (
+        "/",
+        "text/html; charset=utf-8",
+        include_bytes!("../assets/viewer/index.html"),
+    ),
+    (
+        "/three/three.module.min.js",
+        "text/javascript",
+        include_bytes!("../assets/three/three.module.min.js"),
+    ),
+    (
+        "/three/loaders/GLTFLoader.js",
+        "text/javascript",
+        include_bytes!("../assets/three/loaders/GLTFLoader.js"),
+    ),
+    (
+        "/three/utils/BufferGeometryUtils.js",
+        "text/javascript",
+        include_bytes!("../assets/three/utils/BufferGeometryUtils.js"),
+    ),
+    (
+        "/three/controls/OrbitControls.js",
+        "text/javascript",
+        include_bytes!("../assets/three/controls/OrbitControls.js"),
+    ),
+];
+
+/// The folder holding `material.gltf` for a run folder or a glTF folder.
+pub fn gltf_dir(dir: &Path) -> Result<PathBuf> {
+    for d in [dir.join("export").join("gltf"), dir.to_path_buf()] {
+        if d.join(svbrdf_export::gltf::GLTF_FILE).is_file() {
+            return Ok(d);
+        }
+    }
+    anyhow::bail!(
+        "invalid folder {} (expected a run folder with export/gltf/material.gltf, or a folder holding material.gltf; run `svbrdf run` or `svbrdf export` first)",
+        dir.display()
+    )
+}
+
+/// Bind 127.0.0.1 on `port`, or on a free port when it is busy or not given.
+pub fn bind(port: Option<u16>) -> Result<TcpListener> {
+    if let Some(p) = port {
+        match TcpListener::bind(("127.0.0.1", p)) {
+            Ok(l) => return Ok(l),
+            Err(e) => eprintln!("port {p} is not available ({e}); using a free port instead"),
+        }
+    }
+    TcpListener::bind(("127.0.0.1", 0)).context("binding a free port on 127.0.0.1")
+}
+
+fn content_type(name: &str) -> &'static str {
+    match name.rsplit('.').next() {
+        Some("gltf") => "model/gltf+json",
+        Some("bin") => "application/octet-stream",
+        Some("png") => "image/png",
+        Some("jpg" | "jpeg") => "image/jpeg",
+        _ => "application/octet-stream",
+    }
+}
+
+fn respond(stream: &mut TcpStream, status: &str, kind: &str, body: &[u8]) -> std::io::Result<()> {
+    write!(
+        stream,
+        "HTTP/1.1 {status}\r\nContent-Type: {kind}\r\nContent-Length: {}\r\nCache-Control: no-store\r\nConnection: close\r\n\r\n",
+        body.len()
+    )?;
+    stream.write_all(body)?;
+    stream.flush()
+}
+
+fn handle(mut stream: TcpStream, gltf: &Path) -> std::io::Result<()> {
+    let mut reader = BufReader::new(stream.try_clone()?);
+    let mut line = String::new();
+    reader.read_line(&mut line)?;
+    // Drain the headers.
+    let mut h = String::new();
+    while reader.read_line(&mut h)? > 2 {
+        h.clear();
+    }
+    let mut parts = line.split_whitespace();
+    let (method, target) = (parts.next().unwrap_or(""), parts.next().unwrap_or("/"));
+    if method != "GET" {
+        return respond(
+            &mut stream,
+            "405 Method Not Allowed",
+            "text/plain",
+            b"GET only\n",
+        );
+    }
+    let path = target.split(['?', '#']).next().unwrap_or("/");
+    if let Some((_, kind, bytes)) = ASSETS.iter().find(|(p, ..)| *p == path) {
+        return respond(&mut stream, "200 OK", kind, bytes);
+    }
+    if let Some(name) = path.strip_prefix("/gltf/") {
+        // Only plain file names directly inside the export folder.
+        let ok = !name.is_empty()
+            && name
+                .chars()
+                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'))
+            && !name.starts_with('.');
+        if ok {
+            if let Ok(bytes) = std::fs::read(gltf.join(name)) {
+                return respond(&mut stream, "200 OK", content_type(name), &bytes);
+            }
+        }
+    }
+    respond(&mut stream, "404 Not Found", "text/plain", b"not found\n")
+}
+
+pub fn run_view(a: &ViewArgs) -> Result<()> {
+    let gltf = gltf_dir(&a.dir)?;
+    let listener = bind(a.port)?;
+    let addr = listener.local_addr()?;
+    println!("serving {} at http://{addr}/", gltf.display());
+    println!("open that URL in a browser; Ctrl-C stops the server");
+    std::io::stdout().flush()?;
+    for stream in listener.incoming() {
+        match stream {
+            Ok(s) => {
+                let dir = gltf.clone();
+                std::thread::spawn(move || {
+                    let _ = handle(s, &dir);
+                });
+            }
+            Err(e) => eprintln!("connection failed: {e}"),
+        }
+    }
+    Ok(())
+}
