@@ -44,6 +44,8 @@ enum Command {
     Export(run_cmd::ExportArgs),
     /// Show the exported material in a local web page (three.js) with a light you drag.
     View(view::ViewArgs),
+    /// Write the printable marker sheet of the capture kit (SVG and 300 dpi PNG).
+    Markers(run_cmd::MarkersArgs),
     /// Measure speed and accuracy and print one JSON object per line.
     Bench(bench::BenchArgs),
 }
@@ -404,6 +406,7 @@ fn main() -> ExitCode {
         Command::Run(a) => run_cmd::run_pipeline(&a).and_then(|o| run_cmd::print_run_summary(&o)),
         Command::Export(a) => run_cmd::run_export(&a).map(|_| ()),
         Command::View(a) => view::run_view(&a),
+        Command::Markers(a) => run_cmd::run_markers(&a),
         Command::Bench(a) => bench::run(&a),
     };
     match result {

@@ -376,3 +376,70 @@ pub fn print_run_summary(o: &RunOutcome) -> Result<()> {
     }
     Ok(())
 }
+
+#[derive(Args, Clone)]
+pub struct MarkersArgs {
+    /// Output folder: markers.svg (print this at 100%) and markers.png (300 dpi).
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Marker dictionary, as OpenCV names it (e.g. DICT_6X6_250, DICT_APRILTAG_36h11).
+    #[arg(long, default_value = "DICT_6X6_250")]
+    pub dictionary: String,
+    /// Printed side of each marker in cm, black border included (paper: 1.6). Put the
+    /// same number in camera.json as marker_size_cm.
+    #[arg(long, default_value_t = 1.6)]
+    pub size_cm: f64,
+    /// Replace the output folder if it exists.
+    #[arg(long)]
+    pub overwrite: bool,
+}
+
+pub fn run_markers(a: &MarkersArgs) -> Result<()> {
+    use svbrdf_export::markers::{raster, svg, MarkerCells};
+    let dict = svbrdf_cv::aruco::Dictionary::from_name(&a.dictionary)?;
+    let size_mm = a.size_cm * 10.0;
+    let cells: Vec<MarkerCells> = (0..4)
+        .map(|id| {
+            svbrdf_cv::aruco::marker_pattern(dict, id).map(|p| MarkerCells {
+                id,
+                cells: p.cells,
+                white: p.white,
+            })
+        })
+        .collect::<Result<_, _>>()?;
+    let svg_text = svg(&cells, size_mm, dict.name())?;
+    let img = raster(&cells, size_mm)?;
+    let staging = svbrdf_core::fsutil::StagingDir::new(&a.out, a.overwrite)?;
+    let dir = staging.path();
+    std::fs::write(dir.join("markers.svg"), svg_text)
+        .with_context(|| format!("writing {}", dir.join("markers.svg").display()))?;
+    let png_path = dir.join("markers.png");
+    let file = std::fs::File::create(&png_path)
+        .with_context(|| format!("writing {}", png_path.display()))?;
+    let mut enc = png::Encoder::new(
+        std::io::BufWriter::new(file),
+        img.width as u32,
+        img.height as u32,
+    );
+    enc.set_color(png::ColorType::Grayscale);
+    enc.set_depth(png::BitDepth::Eight);
+    // 300 dots per inch, so that printing "actual size" keeps the physical scale.
+    let ppm = (svbrdf_export::markers::DPI / 0.0254).round() as u32;
+    enc.set_pixel_dims(Some(png::PixelDimensions {
+        xppu: ppm,
+        yppu: ppm,
+        unit: png::Unit::Meter,
+    }));
+    let mut w = enc.write_header()?;
+    w.write_image_data(&img.data)?;
+    w.finish()?;
+    let out = staging.commit()?;
+    println!(
+        "wrote {0}/markers.svg and {0}/markers.png (300 dpi): ids 0-3 of {1}, {2} cm",
+        out.display(),
+        dict.name(),
+        a.size_cm
+    );
+    println!("print at 100% (\"actual size\") and check that the scale bar measures 5 cm");
+    Ok(())
+}

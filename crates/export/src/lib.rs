@@ -15,6 +15,7 @@
 
 pub mod convert;
 pub mod gltf;
+pub mod markers;
 pub mod mesh;
 pub mod mitsuba;
 pub mod render;

@@ -330,3 +330,66 @@ fn viewer_serves_the_gltf_and_the_light_follows_the_pointer() {
         "moving the light changed the image by only {change}"
     );
 }
+
+#[test]
+fn marker_sheet_is_detected_by_opencv_at_its_physical_size() {
+    let out = temp_dir().join("markers");
+    let o = svbrdf(&["markers", "--out", out.to_str().unwrap(), "--size-cm", "2"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let svg = std::fs::read_to_string(out.join("markers.svg")).unwrap();
+    assert!(svg.contains("DICT_6X6_250, 2.0 cm") && svg.contains("50 mm"));
+    let img = image::open(out.join("markers.png")).unwrap().to_rgb8();
+    assert_eq!((img.width(), img.height()), (2480, 3508), "A4 at 300 dpi");
+    let ours = svbrdf_core::image::ImageU8::from_vec(
+        img.width() as usize,
+        img.height() as usize,
+        3,
+        img.into_raw(),
+    )
+    .unwrap();
+    let dict = svbrdf_cv::aruco::Dictionary::from_name("DICT_6X6_250").unwrap();
+    let mut found = svbrdf_cv::aruco::detect_markers(&ours, dict).unwrap();
+    found.sort_by_key(|m| m.id);
+    assert_eq!(
+        found.iter().map(|m| m.id).collect::<Vec<_>>(),
+        vec![0, 1, 2, 3]
+    );
+    for m in &found {
+        // 2 cm at 300 dpi = 236.2 px per side.
+        let c = m.corners;
+        let side = ((c[1][0] - c[0][0]).powi(2) + (c[1][1] - c[0][1]).powi(2)).sqrt();
+        assert!(
+            (side - 2.0 / 2.54 * 300.0).abs() < 2.0,
+            "id {}: side {side} px",
+            m.id
+        );
+        // Upright: the marker's own top-left corner is its upper-left one on the page.
+        assert!(
+            c[0][1] < c[3][1] && c[0][0] < c[1][0],
+            "id {} is rotated",
+            m.id
+        );
+    }
+    // Another dictionary, and a bad size.
+    let o = svbrdf(&[
+        "markers",
+        "--out",
+        temp_dir().join("april").to_str().unwrap(),
+        "--dictionary",
+        "DICT_APRILTAG_36h11",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = svbrdf(&[
+        "markers",
+        "--out",
+        temp_dir().join("bad").to_str().unwrap(),
+        "--size-cm",
+        "30",
+    ]);
+    assert!(!o.status.success());
+    assert!(
+        stderr(&o).contains("30") && stderr(&o).lines().count() == 1,
+        "{}",
+        stderr(&o)
+    );
+}
