@@ -276,7 +276,7 @@ mod tests {
                 white: (0..64)
                     .map(|i| {
                         let (r, c) = (i / 8, i % 8);
-                        r > 0 && r < 7 && c > 0 && c < 7 && (r + c + id as usize) % 2 == 0
+                        r > 0 && r < 7 && c > 0 && c < 7 && (r + c + id as usize).is_multiple_of(2)
                     })
                     .collect(),
             })
