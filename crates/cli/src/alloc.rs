@@ -39,3 +39,52 @@ pub fn release_free_memory() {
         );
     }
 }
+
+/// Keep freed pages for reuse (`true`, the start-up setting: right for the alignment's
+/// per-frame SIFT pyramids) or hand them back to the kernel after 10 s (`false`: the
+/// fit allocates many differently sized buffers, and keeping every freed page raised
+/// its peak on the paper preset from 4.4 GB to 7.0 GB). Applies to every arena.
+pub fn retain_freed_pages(retain: bool) {
+    #[cfg(all(target_os = "linux", not(target_env = "musl")))]
+    #[allow(unsafe_code)]
+    // SAFETY: mallctl reads `arenas.narenas` into a u32 and writes ssize_t decay
+    // times, with the sizes jemalloc documents for these names; names are
+    // NUL-terminated. Failures (an index without an arena) are ignored.
+    unsafe {
+        use std::ffi::{c_void, CString};
+        let ms: isize = if retain { -1 } else { 10_000 };
+        let mut narenas: u32 = 0;
+        let mut len = std::mem::size_of::<u32>();
+        tikv_jemalloc_sys::mallctl(
+            c"arenas.narenas".as_ptr(),
+            (&mut narenas as *mut u32).cast::<c_void>(),
+            &mut len,
+            std::ptr::null_mut(),
+            0,
+        );
+        let mut names: Vec<String> = (0..narenas)
+            .flat_map(|i| {
+                [
+                    format!("arena.{i}.dirty_decay_ms"),
+                    format!("arena.{i}.muzzy_decay_ms"),
+                ]
+            })
+            .collect();
+        names.push("arenas.dirty_decay_ms".into());
+        names.push("arenas.muzzy_decay_ms".into());
+        for name in names {
+            let Ok(c) = CString::new(name) else { continue };
+            let mut v = ms;
+            tikv_jemalloc_sys::mallctl(
+                c.as_ptr(),
+                std::ptr::null_mut(),
+                std::ptr::null_mut(),
+                (&mut v as *mut isize).cast::<c_void>(),
+                std::mem::size_of::<isize>(),
+            );
+        }
+    }
+    #[cfg(not(all(target_os = "linux", not(target_env = "musl"))))]
+    let _ = retain;
+    release_free_memory();
+}

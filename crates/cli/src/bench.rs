@@ -47,6 +47,15 @@ pub struct BenchArgs {
     /// Also time `synth --preset tiny` end to end (needs a writable temp folder).
     #[arg(long)]
     synth: bool,
+    /// Run the whole pipeline (align, fit, export, report) on a simulated capture of
+    /// this preset (`tiny` or `paper`) and print one JSON line: per-stage wall time and
+    /// peak memory, alignment and pose errors, map errors and relighting error against
+    /// the ground truth. The capture is synthesized into --dir, or reused from there.
+    #[arg(long)]
+    preset: Option<String>,
+    /// Working folder of --preset: capture/ (reused when complete) and run/.
+    #[arg(long, requires = "preset")]
+    dir: Option<std::path::PathBuf>,
     /// Samples per BRDF measurement.
     #[arg(long, default_value_t = 4_000_000)]
     samples: usize,
@@ -84,6 +93,13 @@ pub fn peak_memory_kb() -> Option<u64> {
     let s = std::fs::read_to_string("/proc/self/status").ok()?;
     let line = s.lines().find(|l| l.starts_with("VmHWM:"))?;
     line.split_whitespace().nth(1)?.parse().ok()
+}
+
+/// Start a new peak-memory measurement: Linux resets the process's VmHWM to its
+/// current resident size when "5" is written to /proc/self/clear_refs.
+pub fn reset_peak_memory() {
+    crate::alloc::release_free_memory();
+    let _ = std::fs::write("/proc/self/clear_refs", "5");
 }
 
 /// How many of the connections found by testing all pairs the predicted-overlap
@@ -415,7 +431,128 @@ fn holdout_picture(
     pic
 }
 
+/// Compare a run folder made from a simulated capture with its ground truth: alignment
+/// and map accuracy, written with truth | fit | difference pictures into `run/truth/`,
+/// and the report rewritten to show them.
+pub fn truth_section(
+    run: &std::path::Path,
+    capture: &std::path::Path,
+) -> Result<(serde_json::Value, svbrdf_fit::evaluate::Accuracy)> {
+    let aligned = run.join(crate::run_cmd::ALIGNED);
+    let maps_dir = run.join(crate::run_cmd::MAPS);
+    let align = align_accuracy(&aligned, capture)?;
+    let acc = maps_accuracy(&maps_dir, capture)?;
+    let loaded = svbrdf_fit::output::read_maps(&maps_dir)?;
+    let maps = crate::run_cmd::load_maps(&maps_dir)?;
+    let truth_dir = run.join("truth");
+    truth_pictures(
+        &truth_dir,
+        &loaded.grid,
+        &loaded.params,
+        maps.model,
+        loaded.manifest.summary.light_intensity,
+        &acc,
+        &load_truth(capture)?,
+        "",
+    )?;
+    let mut figures = serde_json::to_value(&acc)?;
+    for k in [
+        "align_error_px_median",
+        "align_error_px_p95",
+        "camera_error_mm_median",
+    ] {
+        figures[k] = align[k].clone();
+    }
+    svbrdf_core::fsutil::write_json(&truth_dir.join("accuracy.json"), &figures)?;
+    svbrdf_export::report::write_report(run, Some(&maps))?;
+    Ok((align, acc))
+}
+
+/// The whole pipeline on a simulated capture of `preset`, measured against its truth.
+pub fn pipeline(preset: &str, dir: &std::path::Path) -> Result<serde_json::Value> {
+    let cfg = svbrdf_synth::SynthConfig::preset(preset)?;
+    let capture = dir.join("capture");
+    let complete = capture.join("ground_truth").join("truth.json").exists()
+        && capture.join("flash.mp4").exists();
+    let synth_seconds = if complete {
+        eprintln!("bench: reusing the capture in {}", capture.display());
+        None
+    } else {
+        eprintln!(
+            "bench: synthesizing the {preset} capture into {}",
+            capture.display()
+        );
+        let t = Instant::now();
+        svbrdf_cv::set_single_threaded()?;
+        svbrdf_synth::synthesize(&cfg, &capture, true, &crate::progress::Bars::new())?;
+        Some(t.elapsed().as_secs_f64())
+    };
+    let run_args = crate::run_cmd::RunArgs {
+        video: capture.join("flash.mp4"),
+        reference: capture.join("reference.jpg"),
+        camera: Some(capture.join("camera.json")),
+        out: dir.join("run"),
+        region: None,
+        px_per_cm: Some(cfg.map_px_per_cm),
+        model: "ward".into(),
+        fit_config: None,
+        no_refine: false,
+        seed: None,
+        force: true,
+        overwrite: true,
+    };
+    let t = Instant::now();
+    let outcome = crate::run_cmd::run_pipeline(&run_args)?;
+    let pipeline_seconds = t.elapsed().as_secs_f64();
+    let aligned = run_args.out.join(crate::run_cmd::ALIGNED);
+    let maps = run_args.out.join(crate::run_cmd::MAPS);
+    let (align, acc) = truth_section(&run_args.out, &capture)?;
+    let align_rec: serde_json::Value = svbrdf_core::fsutil::read_json(&aligned.join("align.json"))?;
+    let fit_rec: serde_json::Value = svbrdf_core::fsutil::read_json(&maps.join("fit.json"))?;
+    let stages = &outcome.record["stages"];
+    Ok(json!({
+        "bench": "pipeline",
+        "preset": preset,
+        "machine": machine(),
+        "synth_seconds": synth_seconds,
+        "pipeline_seconds": pipeline_seconds,
+        "stages": {
+            "align": {"seconds": stages["align"]["seconds"], "peak_memory_mb": stages["align"]["peak_memory_mb"], "timings": align_rec["summary"]["timings"]},
+            "fit": {"seconds": stages["fit"]["seconds"], "peak_memory_mb": stages["fit"]["peak_memory_mb"], "timings": fit_rec["summary"]["timings"]},
+            "export": {"seconds": stages["export"]["seconds"], "peak_memory_mb": stages["export"]["peak_memory_mb"]},
+            "report": {"seconds": outcome.record["report_seconds"]},
+        },
+        "frames": align_rec["summary"]["frames"],
+        "alignment": {
+            "align_error_px_median": align["align_error_px_median"],
+            "align_error_px_p95": align["align_error_px_p95"],
+            "camera_error_mm_median": align["camera_error_mm_median"],
+            "flash_error_mm_median": align["flash_error_mm_median"],
+        },
+        "maps": {
+            "diffuse_rmse": acc.diffuse_rmse,
+            "albedo_scale": acc.albedo_scale,
+            "normal_mean_deg": acc.normal_mean_deg,
+            "normal_median_deg": acc.normal_median_deg,
+            "relight_relative_rmse_mean": acc.relight_relative_rmse_mean,
+            "relight_relative_rmse": acc.relight_relative_rmse,
+        },
+        "clusters": {"initial": fit_rec["summary"]["initial_clusters"], "final": fit_rec["summary"]["final_clusters"]},
+    }))
+}
+
 pub fn run(a: &BenchArgs) -> Result<()> {
+    crate::STDOUT_IS_JSON.store(true, std::sync::atomic::Ordering::Relaxed);
+    if let Some(p) = &a.preset {
+        let dir = a
+            .dir
+            .clone()
+            .unwrap_or_else(|| std::path::PathBuf::from(format!("bench-{p}")));
+        println!("{}", pipeline(p, &dir)?);
+        if a.no_brdf {
+            return Ok(());
+        }
+    }
     if let (Some(m), Some(t)) = (&a.fit_maps, &a.truth) {
         let acc = maps_accuracy(m, t)?;
         println!(

@@ -98,27 +98,34 @@ impl FrameSource for CvFrames {
 pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
     let cfg = fit_config(a)?;
     svbrdf_cv::set_single_threaded()?;
+    crate::alloc::retain_freed_pages(false);
     let progress = crate::progress::Bars::new();
     let run = svbrdf_fit::run(&a.capture, &a.out, a.overwrite, &cfg, &CvFrames, &progress)?;
     let s = &run.manifest.summary;
-    println!("wrote {}", run.out.display());
-    println!(
+    say!("wrote {}", run.out.display());
+    say!(
         "observations: {} ({} with a clipped channel); {} of {} pixels observed at least {} times",
-        s.observations, s.clipped_observations, s.covered_pixels, s.pixels, cfg.min_observations
+        s.observations,
+        s.clipped_observations,
+        s.covered_pixels,
+        s.pixels,
+        cfg.min_observations
     );
-    println!(
+    say!(
         "clusters: {} initial (k-means elbow), {} final, deepest split level {}; {} stopped at the iteration cap",
         s.initial_clusters,
         s.final_clusters,
         s.max_depth,
         s.unconverged_clusters.len()
     );
-    println!(
+    say!(
         "light intensity {:.1} ({:?}); model {}",
-        s.light_intensity[1], s.light_intensity_source, s.model
+        s.light_intensity[1],
+        s.light_intensity_source,
+        s.model
     );
     let worst = s.frames.iter().map(|f| f.relative).fold(0.0f64, f64::max);
-    println!(
+    say!(
         "re-rendering error (linear RMS): clusters only {:.4}, final {:.4}; worst frame {:.1}% of its mean",
         s.rmse_clusters,
         s.rmse_final,

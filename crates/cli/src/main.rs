@@ -3,6 +3,21 @@
 //! The binary only parses, validates and calls library stages; it owns progress bars
 //! and prints errors once.
 
+/// Whether stdout is reserved for JSON (`svbrdf bench`): progress messages of the
+/// stages then go to stderr.
+static STDOUT_IS_JSON: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// `println!` for human-readable progress, or `eprintln!` while stdout carries JSON.
+macro_rules! say {
+    ($($t:tt)*) => {
+        if crate::STDOUT_IS_JSON.load(std::sync::atomic::Ordering::Relaxed) {
+            eprintln!($($t)*)
+        } else {
+            println!($($t)*)
+        }
+    };
+}
+
 mod bench;
 mod fit_cmd;
 mod progress;
@@ -186,6 +201,7 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
 fn run_align(a: &AlignArgs) -> Result<()> {
     let cfg = align_config(a)?;
     svbrdf_cv::set_single_threaded()?;
+    alloc::retain_freed_pages(true);
     let progress = progress::Bars::new();
     let inputs = svbrdf_align::AlignInputs {
         video: a.video.clone(),
@@ -193,18 +209,20 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     };
     let s = svbrdf_align::align(&inputs, &cfg, &a.out, a.overwrite, &progress)?;
     let f = &s.frames;
-    println!("wrote {}", s.out.display());
-    println!(
+    say!("wrote {}", s.out.display());
+    say!(
         "frames: {} decoded, {} kept; dropped {} blurry, {} disconnected, {} unregistered, {} outside the markers",
         f.decoded, f.kept, f.blurry, f.disconnected, f.unregistered, f.outside
     );
-    println!(
+    say!(
         "matching: {} coarse pairs tested, {} connected, {} fine pairs; {} frames see markers, {} anchored to the reference photo",
         s.coarse_pairs_tested, s.connected_pairs, s.fine_pairs, s.frames_with_markers, s.reference_anchored
     );
-    println!(
+    say!(
         "global solve: {} unknowns, residual rms {:.4} cm, median {:.4} cm",
-        s.unknowns, s.solve_rms_cm, s.solve_median_cm
+        s.unknowns,
+        s.solve_rms_cm,
+        s.solve_median_cm
     );
     print_timings(&s.timings);
     Ok(())
@@ -269,9 +287,9 @@ pub fn print_timings(timings: &[(String, f64)]) {
         .iter()
         .map(|(n, v)| format!("{n} {v:.1} s"))
         .collect();
-    println!("timings: {}", t.join(", "));
+    say!("timings: {}", t.join(", "));
     if let Some(kb) = bench::peak_memory_kb() {
-        println!("peak memory: {:.0} MB", kb as f64 / 1024.0);
+        say!("peak memory: {:.0} MB", kb as f64 / 1024.0);
     }
 }
 
@@ -303,7 +321,7 @@ fn run_demo(a: &DemoArgs) -> Result<()> {
     };
     let outcome = run_cmd::run_pipeline(&run_args)?;
     println!("== accuracy against the simulator's ground truth");
-    let acc = bench::align_accuracy(&run_args.out.join(run_cmd::ALIGNED), &capture)?;
+    let (acc, m) = bench::truth_section(&run_args.out, &capture)?;
     let get = |k: &str| acc[k].as_f64().unwrap_or(f64::NAN);
     println!(
         "alignment error: median {:.3} px, 95th percentile {:.3} px (output pixels at {} px/cm)",
@@ -316,8 +334,6 @@ fn run_demo(a: &DemoArgs) -> Result<()> {
         get("camera_error_mm_median"),
         get("flash_error_mm_median")
     );
-    let maps_dir = run_args.out.join(run_cmd::MAPS);
-    let m = bench::maps_accuracy(&maps_dir, &capture)?;
     println!(
         "diffuse albedo RMSE {:.3} (after one global scale {:.3}: the flash intensity is unknown to the fit)",
         m.diffuse_rmse, m.albedo_scale
@@ -331,31 +347,6 @@ fn run_demo(a: &DemoArgs) -> Result<()> {
         m.relight_relative_rmse.len(),
         100.0 * m.relight_relative_rmse_mean
     );
-    // Ground-truth pictures and figures go into the report.
-    let truth_dir = run_args.out.join("truth");
-    let loaded = svbrdf_fit::output::read_maps(&maps_dir)?;
-    let model = run_cmd::load_maps(&maps_dir)?.model;
-    bench::truth_pictures(
-        &truth_dir,
-        &loaded.grid,
-        &loaded.params,
-        model,
-        loaded.manifest.summary.light_intensity,
-        &m,
-        &bench::load_truth(&capture)?,
-        "",
-    )?;
-    let mut figures = serde_json::to_value(&m)?;
-    for k in [
-        "align_error_px_median",
-        "align_error_px_p95",
-        "camera_error_mm_median",
-    ] {
-        figures[k] = acc[k].clone();
-    }
-    svbrdf_core::fsutil::write_json(&truth_dir.join("accuracy.json"), &figures)?;
-    let maps = run_cmd::load_maps(&maps_dir)?;
-    svbrdf_export::report::write_report(&run_args.out, Some(&maps))?;
     println!();
     run_cmd::print_run_summary(&outcome)?;
     Ok(())

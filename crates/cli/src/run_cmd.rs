@@ -70,8 +70,8 @@ pub fn run_export(a: &ExportArgs) -> Result<svbrdf_export::ExportSummary> {
     cfg.validate()?;
     let maps = load_maps(&a.maps)?;
     let s = svbrdf_export::export_all(&maps, &cfg, &a.out, a.overwrite)?;
-    println!("wrote {} (glTF 2.0)", s.gltf.display());
-    println!(
+    say!("wrote {} (glTF 2.0)", s.gltf.display());
+    say!(
         "wrote {} (Mitsuba 3; render with python3 {})",
         s.mitsuba.display(),
         s.mitsuba.with_file_name("render.py").display()
@@ -294,32 +294,37 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
             && dir.exists()
             && old_stage(name).is_some_and(|s| s["fingerprint"] == json!(fp));
         if reusable {
-            println!(
+            say!(
                 "== {name}: reusing {} (inputs and settings unchanged)",
                 dir.display()
             );
             record["stages"][*name] = old_stage(name).unwrap_or(Value::Null);
         } else {
-            println!("== {name}");
+            say!("== {name}");
+            crate::bench::reset_peak_memory();
             let t0 = Instant::now();
             stage()?;
             record["stages"][*name] = json!({
                 "fingerprint": fp,
                 "seconds": t0.elapsed().as_secs_f64(),
+                "peak_memory_mb": crate::bench::peak_memory_kb().map(|k| k as f64 / 1024.0),
                 "output": dir.file_name().map(|f| f.to_string_lossy().into_owned()),
             });
             // Record each finished stage at once, so an interrupted run resumes here.
             write_record(&record_path, &record)?;
         }
         prev_fp = fp;
-        println!();
+        say!();
     }
     write_record(&record_path, &record)?;
-    println!("== report");
+    say!("== report");
+    let t0 = Instant::now();
     let maps = load_maps(&a.out.join(MAPS))?;
     let report = svbrdf_export::report::write_report(&a.out, Some(&maps))?;
-    println!("wrote {}", report.display());
-    println!();
+    record["report_seconds"] = json!(t0.elapsed().as_secs_f64());
+    write_record(&record_path, &record)?;
+    say!("wrote {}", report.display());
+    say!();
     Ok(RunOutcome {
         out: a.out.clone(),
         record,
@@ -331,13 +336,13 @@ pub fn print_run_summary(o: &RunOutcome) -> Result<()> {
     let align: Value = svbrdf_core::fsutil::read_json(&o.out.join(ALIGNED).join("align.json"))?;
     let fit: Value = svbrdf_core::fsutil::read_json(&o.out.join(MAPS).join("fit.json"))?;
     let f = &align["summary"]["frames"];
-    println!("== summary");
-    println!(
+    say!("== summary");
+    say!(
         "frames: {} decoded, {} kept; dropped {} blurry, {} disconnected, {} unregistered, {} outside the markers",
         f["decoded"], f["kept"], f["blurry"], f["disconnected"], f["unregistered"], f["outside"]
     );
     let s = &fit["summary"];
-    println!(
+    say!(
         "clusters: {} initial, {} final; model {}",
         s["initial_clusters"],
         s["final_clusters"],
@@ -352,8 +357,8 @@ pub fn print_run_summary(o: &RunOutcome) -> Result<()> {
             )
         })
         .collect();
-    println!("stage times (when last run): {}", secs.join(", "));
-    println!("files:");
+    say!("stage times (when last run): {}", secs.join(", "));
+    say!("files:");
     for (what, p) in [
         ("report", o.out.join("report.html")),
         (
@@ -371,7 +376,7 @@ pub fn print_run_summary(o: &RunOutcome) -> Result<()> {
         ),
     ] {
         if p.exists() {
-            println!("  {what:>18}: {}", p.display());
+            say!("  {what:>18}: {}", p.display());
         }
     }
     Ok(())
@@ -434,12 +439,12 @@ pub fn run_markers(a: &MarkersArgs) -> Result<()> {
     w.write_image_data(&img.data)?;
     w.finish()?;
     let out = staging.commit()?;
-    println!(
+    say!(
         "wrote {0}/markers.svg and {0}/markers.png (300 dpi): ids 0-3 of {1}, {2} cm",
         out.display(),
         dict.name(),
         a.size_cm
     );
-    println!("print at 100% (\"actual size\") and check that the scale bar measures 5 cm");
+    say!("print at 100% (\"actual size\") and check that the scale bar measures 5 cm");
     Ok(())
 }

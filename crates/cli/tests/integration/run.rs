@@ -393,3 +393,46 @@ fn marker_sheet_is_detected_by_opencv_at_its_physical_size() {
         stderr(&o)
     );
 }
+
+#[test]
+fn bench_preset_reports_every_stage_against_the_truth() {
+    let dir = temp_dir().join("bench");
+    std::fs::create_dir_all(&dir).unwrap();
+    // Reuse the shared tiny capture instead of synthesizing another.
+    std::os::unix::fs::symlink(tiny_capture(), dir.join("capture")).unwrap();
+    let o = svbrdf(&[
+        "bench",
+        "--preset",
+        "tiny",
+        "--dir",
+        dir.to_str().unwrap(),
+        "--no-brdf",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = stdout(&o);
+    assert_eq!(
+        out.lines().count(),
+        1,
+        "stdout must hold the JSON line only:\n{out}"
+    );
+    let v: serde_json::Value = serde_json::from_str(&out).unwrap();
+    assert_eq!(v["bench"], "pipeline");
+    assert!(v["synth_seconds"].is_null(), "the capture was not reused");
+    for stage in ["align", "fit", "export"] {
+        let s = &v["stages"][stage];
+        assert!(s["seconds"].as_f64().unwrap() > 0.0, "{stage}");
+        assert!(s["peak_memory_mb"].as_f64().unwrap() > 1.0, "{stage}");
+    }
+    let med = v["alignment"]["align_error_px_median"].as_f64().unwrap();
+    assert!(med < 0.5, "alignment error {med}");
+    let normal = v["maps"]["normal_mean_deg"].as_f64().unwrap();
+    assert!(normal < 6.0, "normal error {normal}");
+    assert!(v["maps"]["relight_relative_rmse_mean"]
+        .as_f64()
+        .unwrap()
+        .is_finite());
+    // The report of a synthetic run shows the ground truth.
+    let html = std::fs::read_to_string(dir.join("run/report.html")).unwrap();
+    assert!(html.contains("<section id=\"truth\""));
+    assert!(dir.join("run/truth/accuracy.json").exists());
+}
