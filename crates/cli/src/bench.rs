@@ -487,20 +487,11 @@ pub fn pipeline(preset: &str, dir: &std::path::Path) -> Result<serde_json::Value
         svbrdf_synth::synthesize(&cfg, &capture, true, &crate::progress::Bars::new())?;
         Some(t.elapsed().as_secs_f64())
     };
-    let run_args = crate::run_cmd::RunArgs {
-        video: capture.join("flash.mp4"),
-        reference: capture.join("reference.jpg"),
-        camera: Some(capture.join("camera.json")),
-        out: dir.join("run"),
-        region: None,
-        px_per_cm: Some(cfg.map_px_per_cm),
-        model: "ward".into(),
-        fit_config: None,
-        no_refine: false,
-        seed: None,
-        force: true,
-        overwrite: true,
-    };
+    let run_args = crate::run_cmd::RunArgs::for_synthetic_capture(
+        &capture,
+        dir.join("run"),
+        cfg.map_px_per_cm,
+    );
     let t = Instant::now();
     let outcome = crate::run_cmd::run_pipeline(&run_args)?;
     let pipeline_seconds = t.elapsed().as_secs_f64();

@@ -305,20 +305,8 @@ fn run_demo(a: &DemoArgs) -> Result<()> {
     let s = run_synth(&cfg, &capture, true)?;
     print_summary(&s);
     println!();
-    let run_args = run_cmd::RunArgs {
-        video: capture.join("flash.mp4"),
-        reference: capture.join("reference.jpg"),
-        camera: Some(capture.join("camera.json")),
-        out: a.out.join("run"),
-        region: None,
-        px_per_cm: Some(cfg.map_px_per_cm),
-        model: "ward".into(),
-        fit_config: None,
-        no_refine: false,
-        seed: None,
-        force: true,
-        overwrite: true,
-    };
+    let run_args =
+        run_cmd::RunArgs::for_synthetic_capture(&capture, a.out.join("run"), cfg.map_px_per_cm);
     let outcome = run_cmd::run_pipeline(&run_args)?;
     println!("== accuracy against the simulator's ground truth");
     let (acc, m) = bench::truth_section(&run_args.out, &capture)?;

@@ -122,6 +122,27 @@ pub struct RunArgs {
     pub overwrite: bool,
 }
 
+impl RunArgs {
+    /// Defaults for a simulated capture folder (`svbrdf synth` output) at its map
+    /// resolution, every stage rerun: what `demo` and `bench --preset` run.
+    pub fn for_synthetic_capture(capture: &Path, out: PathBuf, px_per_cm: f64) -> Self {
+        Self {
+            video: capture.join("flash.mp4"),
+            reference: capture.join("reference.jpg"),
+            camera: Some(capture.join("camera.json")),
+            out,
+            region: None,
+            px_per_cm: Some(px_per_cm),
+            model: "ward".into(),
+            fit_config: None,
+            no_refine: false,
+            seed: None,
+            force: true,
+            overwrite: true,
+        }
+    }
+}
+
 fn fnv1a(bytes: &[u8], mut h: u64) -> u64 {
     for b in bytes {
         h ^= u64::from(*b);

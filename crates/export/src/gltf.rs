@@ -317,6 +317,37 @@ pub(crate) mod tests {
         }
     }
 
+    /// The document for a fixed small material, compared with a checked-in golden
+    /// file (regenerate with `SVBRDF_UPDATE_GOLDEN=1` after an intended change, and
+    /// review the diff).
+    #[test]
+    fn document_matches_the_golden_file() {
+        let tmp = tempfile::tempdir().expect("tmp");
+        let maps = checker(ModelKind::Ward);
+        let cfg = ExportConfig {
+            sphere: false,
+            ..ExportConfig::default()
+        };
+        let path = write(&maps, &cfg, &tmp.path().join("g"), false).expect("export");
+        let mut doc: Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).expect("read")).expect("json");
+        doc["asset"]["generator"] = json!("svbrdf");
+        let text = serde_json::to_string_pretty(&doc).expect("json") + "\n";
+        let golden =
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/golden/checker_quad.gltf");
+        if std::env::var_os("SVBRDF_UPDATE_GOLDEN").is_some() {
+            std::fs::create_dir_all(golden.parent().expect("parent")).expect("mkdir");
+            std::fs::write(&golden, &text).expect("write golden");
+        }
+        let want = std::fs::read_to_string(&golden).expect("golden file");
+        assert_eq!(
+            text,
+            want,
+            "glTF document changed; see {}",
+            golden.display()
+        );
+    }
+
     #[test]
     fn writes_a_complete_document_whose_buffers_match() {
         let tmp = tempfile::tempdir().expect("tmp");
