@@ -304,18 +304,32 @@ fn output_is_deterministic_for_a_seed() {
 }
 
 #[test]
-fn demo_writes_a_capture() {
+fn demo_runs_the_whole_pipeline() {
     let out = temp_dir().join("demo");
     let o = svbrdf(&["demo", "--out", out.to_str().unwrap()]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     let text = String::from_utf8_lossy(&o.stdout);
-    assert!(
-        text.contains("flash.mp4") && text.contains("alignment error: median"),
-        "{text}"
-    );
-    assert!(out.join("capture/registered/capture.json").is_file());
-    assert!(out.join("aligned/capture.json").is_file());
-    assert!(out.join("aligned/panorama.png").is_file());
+    for needle in [
+        "flash.mp4",
+        "alignment error: median",
+        "diffuse albedo RMSE",
+        "relighting under",
+        "report.html",
+    ] {
+        assert!(text.contains(needle), "{needle} missing:\n{text}");
+    }
+    for f in [
+        "capture/registered/capture.json",
+        "run/aligned/capture.json",
+        "run/aligned/panorama.png",
+        "run/maps/fit.json",
+        "run/export/gltf/material.gltf",
+        "run/export/mitsuba/scene.xml",
+        "run/truth/accuracy.json",
+        "run/report.html",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
 }
 
 #[test]
