@@ -286,14 +286,27 @@ fn viewer_serves_the_gltf_and_the_light_follows_the_pointer() {
     let get = |path: &str| {
         use std::io::{Read, Write};
         let mut s = std::net::TcpStream::connect(("127.0.0.1", port)).unwrap();
-        write!(s, "GET {path} HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
-        let mut r = String::new();
-        let _ = s.read_to_string(&mut r);
-        r.lines().next().unwrap_or("").to_string()
+        s.set_read_timeout(Some(std::time::Duration::from_secs(30)))
+            .unwrap();
+        s.write_all(format!("GET {path} HTTP/1.1\r\nHost: x\r\n\r\n").as_bytes())
+            .unwrap();
+        let mut r = Vec::new();
+        s.read_to_end(&mut r)
+            .unwrap_or_else(|e| panic!("GET {path}: {e}"));
+        String::from_utf8_lossy(&r)
+            .lines()
+            .next()
+            .unwrap_or("")
+            .to_string()
     };
-    assert!(get("/gltf/material.gltf").contains("200"));
-    assert!(get("/gltf/../run.json").contains("404"));
-    assert!(get("/three/three.module.min.js").contains("200"));
+    for (path, status) in [
+        ("/gltf/material.gltf", "200"),
+        ("/gltf/../run.json", "404"),
+        ("/three/three.module.min.js", "200"),
+    ] {
+        let line = get(path);
+        assert!(line.contains(status), "GET {path}: {line:?}");
+    }
 
     let Some(dom) = crate::util::chromium_dom(&format!("{url}?selftest=1"), 15000) else {
         return;
