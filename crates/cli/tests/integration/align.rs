@@ -204,3 +204,19 @@ fn rotation_metadata_gives_upright_frames() {
         "rotated frame does not match the original turned by 90 degrees"
     );
 }
+
+#[test]
+fn alignment_is_reproducible_byte_for_byte() {
+    // Frames are matched in parallel; the result must not depend on which thread ran
+    // which pair (FLANN's random trees used to).
+    let cap = tiny_capture();
+    let outs: Vec<_> = (0..2)
+        .map(|k| {
+            let out = temp_dir().join(format!("repro{k}"));
+            let o = align(cap, &out, &["--px-per-cm", "24"]);
+            assert!(o.status.success(), "{}", stderr(&o));
+            std::fs::read(out.join("capture.json")).unwrap()
+        })
+        .collect();
+    assert!(outs[0] == outs[1], "two alignments of the same video differ");
+}
