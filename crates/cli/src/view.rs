@@ -140,9 +140,16 @@ pub fn run_view(a: &ViewArgs) -> Result<()> {
     let gltf = gltf_dir(&a.dir)?;
     let listener = bind(a.port)?;
     let addr = listener.local_addr()?;
-    println!("serving {} at http://{addr}/", gltf.display());
-    println!("open that URL in a browser; Ctrl-C stops the server");
-    std::io::stdout().flush()?;
+    // One write, errors ignored: the server keeps serving if nobody reads its stdout
+    // any more (a closed pipe must not end it).
+    let mut stdout = std::io::stdout().lock();
+    let _ = write!(
+        stdout,
+        "serving {} at http://{addr}/\nopen that URL in a browser; Ctrl-C stops the server\n",
+        gltf.display()
+    );
+    let _ = stdout.flush();
+    drop(stdout);
     for stream in listener.incoming() {
         match stream {
             Ok(s) => {

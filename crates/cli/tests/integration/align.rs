@@ -218,5 +218,8 @@ fn alignment_is_reproducible_byte_for_byte() {
             std::fs::read(out.join("capture.json")).unwrap()
         })
         .collect();
-    assert!(outs[0] == outs[1], "two alignments of the same video differ");
+    assert!(
+        outs[0] == outs[1],
+        "two alignments of the same video differ"
+    );
 }

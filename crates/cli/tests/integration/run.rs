@@ -261,11 +261,12 @@ fn viewer_serves_the_gltf_and_the_light_follows_the_pointer() {
         .spawn()
         .unwrap();
     let mut server = Server(child);
-    let stdout = server.0.stdout.take().unwrap();
+    // Keep reading the server's stdout for as long as it runs: a closed pipe would end
+    // the server at its next message (broken pipe), resetting the connections.
+    let mut out = std::io::BufReader::new(server.0.stdout.take().unwrap());
     let mut first = String::new();
-    std::io::BufReader::new(stdout)
-        .read_line(&mut first)
-        .unwrap();
+    out.read_line(&mut first).unwrap();
+    std::thread::spawn(move || std::io::copy(&mut out, &mut std::io::sink()));
     let url = first
         .split_whitespace()
         .find(|w| w.starts_with("http://127.0.0.1:"))
