@@ -254,18 +254,13 @@ pub fn maps_accuracy(
     fit_dir: &std::path::Path,
     synth_dir: &std::path::Path,
 ) -> Result<svbrdf_fit::evaluate::Accuracy> {
-    let truth = load_truth(synth_dir)?;
-    let maps = svbrdf_fit::output::read_maps(fit_dir)?;
-    let model = match maps.manifest.model.as_str() {
-        "ggx" => ModelKind::Ggx,
-        _ => ModelKind::Ward,
-    };
+    let (maps, intensity) = crate::run_cmd::load_fit(fit_dir)?;
     Ok(svbrdf_fit::evaluate::evaluate(
         &maps.grid,
         &maps.params,
-        model.model(),
-        maps.manifest.summary.light_intensity,
-        &truth,
+        maps.model.model(),
+        intensity,
+        &load_truth(synth_dir)?,
     ))
 }
 
@@ -432,27 +427,32 @@ fn holdout_picture(
 }
 
 /// Compare a run folder made from a simulated capture with its ground truth: alignment
-/// and map accuracy, written with truth | fit | difference pictures into `run/truth/`,
-/// and the report rewritten to show them.
+/// and map accuracy, written with truth | fit | difference pictures into `run/truth/`
+/// (the report shows them).
 pub fn truth_section(
     run: &std::path::Path,
     capture: &std::path::Path,
+    maps: &svbrdf_export::MaterialMaps,
+    light_intensity: [f64; 3],
 ) -> Result<(serde_json::Value, svbrdf_fit::evaluate::Accuracy)> {
-    let aligned = run.join(crate::run_cmd::ALIGNED);
-    let maps_dir = run.join(crate::run_cmd::MAPS);
-    let align = align_accuracy(&aligned, capture)?;
-    let acc = maps_accuracy(&maps_dir, capture)?;
-    let loaded = svbrdf_fit::output::read_maps(&maps_dir)?;
-    let maps = crate::run_cmd::load_maps(&maps_dir)?;
+    let align = align_accuracy(&run.join(crate::run_cmd::ALIGNED), capture)?;
+    let truth = load_truth(capture)?;
+    let acc = svbrdf_fit::evaluate::evaluate(
+        &maps.grid,
+        &maps.params,
+        maps.model.model(),
+        light_intensity,
+        &truth,
+    );
     let truth_dir = run.join("truth");
     truth_pictures(
         &truth_dir,
-        &loaded.grid,
-        &loaded.params,
+        &maps.grid,
+        &maps.params,
         maps.model,
-        loaded.manifest.summary.light_intensity,
+        light_intensity,
         &acc,
-        &load_truth(capture)?,
+        &truth,
         "",
     )?;
     let mut figures = serde_json::to_value(&acc)?;
@@ -464,7 +464,6 @@ pub fn truth_section(
         figures[k] = align[k].clone();
     }
     svbrdf_core::fsutil::write_json(&truth_dir.join("accuracy.json"), &figures)?;
-    svbrdf_export::report::write_report(run, Some(&maps))?;
     Ok((align, acc))
 }
 
@@ -494,10 +493,14 @@ pub fn pipeline(preset: &str, dir: &std::path::Path) -> Result<serde_json::Value
     );
     let t = Instant::now();
     let outcome = crate::run_cmd::run_pipeline(&run_args)?;
-    let pipeline_seconds = t.elapsed().as_secs_f64();
+    // The comparison with the truth is the benchmark's, not the pipeline's.
+    let pipeline_seconds =
+        t.elapsed().as_secs_f64() - outcome.record["truth_seconds"].as_f64().unwrap_or(0.0);
     let aligned = run_args.out.join(crate::run_cmd::ALIGNED);
     let maps = run_args.out.join(crate::run_cmd::MAPS);
-    let (align, acc) = truth_section(&run_args.out, &capture)?;
+    let Some((align, acc)) = &outcome.truth else {
+        anyhow::bail!("the pipeline did not compare with the truth");
+    };
     let align_rec: serde_json::Value = svbrdf_core::fsutil::read_json(&aligned.join("align.json"))?;
     let fit_rec: serde_json::Value = svbrdf_core::fsutil::read_json(&maps.join("fit.json"))?;
     let stages = &outcome.record["stages"];

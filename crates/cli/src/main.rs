@@ -309,7 +309,9 @@ fn run_demo(a: &DemoArgs) -> Result<()> {
         run_cmd::RunArgs::for_synthetic_capture(&capture, a.out.join("run"), cfg.map_px_per_cm);
     let outcome = run_cmd::run_pipeline(&run_args)?;
     println!("== accuracy against the simulator's ground truth");
-    let (acc, m) = bench::truth_section(&run_args.out, &capture)?;
+    let Some((acc, m)) = &outcome.truth else {
+        anyhow::bail!("the pipeline did not compare with the truth");
+    };
     let get = |k: &str| acc[k].as_f64().unwrap_or(f64::NAN);
     println!(
         "alignment error: median {:.3} px, 95th percentile {:.3} px (output pixels at {} px/cm)",

@@ -38,8 +38,8 @@ pub struct ExportArgs {
     pub overwrite: bool,
 }
 
-/// Read a fit output folder as exportable maps.
-pub fn load_maps(dir: &Path) -> Result<MaterialMaps> {
+/// Read a fit output folder: the exportable maps and the light intensity the fit used.
+pub fn load_fit(dir: &Path) -> Result<(MaterialMaps, [f64; 3])> {
     let m = svbrdf_fit::output::read_maps(dir)
         .with_context(|| format!("reading the fitted maps in {}", dir.display()))?;
     let model = match m.manifest.model.as_str() {
@@ -50,11 +50,17 @@ pub fn load_maps(dir: &Path) -> Result<MaterialMaps> {
             dir.join("fit.json").display()
         ),
     };
-    Ok(MaterialMaps {
+    let maps = MaterialMaps {
         model,
         grid: m.grid,
         params: m.params,
-    })
+    };
+    Ok((maps, m.manifest.summary.light_intensity))
+}
+
+/// Read a fit output folder as exportable maps.
+pub fn load_maps(dir: &Path) -> Result<MaterialMaps> {
+    load_fit(dir).map(|(maps, _)| maps)
 }
 
 fn export_config(a: &ExportArgs) -> ExportConfig {
@@ -120,11 +126,17 @@ pub struct RunArgs {
     /// Allow replacing an output folder that holds a run of other inputs.
     #[arg(long)]
     pub overwrite: bool,
+    /// For simulated captures: the `svbrdf synth` folder whose ground truth the
+    /// alignment and the maps are compared with (figures and pictures in truth/ and in
+    /// the report).
+    #[arg(long)]
+    pub truth: Option<PathBuf>,
 }
 
 impl RunArgs {
     /// Defaults for a simulated capture folder (`svbrdf synth` output) at its map
-    /// resolution, every stage rerun: what `demo` and `bench --preset` run.
+    /// resolution, every stage rerun, compared with its truth: what `demo` and
+    /// `bench --preset` run.
     pub fn for_synthetic_capture(capture: &Path, out: PathBuf, px_per_cm: f64) -> Self {
         Self {
             video: capture.join("flash.mp4"),
@@ -139,6 +151,7 @@ impl RunArgs {
             seed: None,
             force: true,
             overwrite: true,
+            truth: Some(capture.to_path_buf()),
         }
     }
 }
@@ -192,6 +205,8 @@ fn fingerprint(v: &Value) -> String {
 pub struct RunOutcome {
     pub out: PathBuf,
     pub record: Value,
+    /// With `--truth`: the alignment accuracy (JSON) and the map accuracy.
+    pub truth: Option<(Value, svbrdf_fit::evaluate::Accuracy)>,
 }
 
 fn write_record(path: &Path, record: &Value) -> Result<()> {
@@ -338,9 +353,18 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         say!();
     }
     write_record(&record_path, &record)?;
+    let (maps, light_intensity) = load_fit(&a.out.join(MAPS))?;
+    let truth = match &a.truth {
+        Some(capture) => {
+            let t0 = Instant::now();
+            let t = crate::bench::truth_section(&a.out, capture, &maps, light_intensity)?;
+            record["truth_seconds"] = json!(t0.elapsed().as_secs_f64());
+            Some(t)
+        }
+        None => None,
+    };
     say!("== report");
     let t0 = Instant::now();
-    let maps = load_maps(&a.out.join(MAPS))?;
     let report = svbrdf_export::report::write_report(&a.out, Some(&maps))?;
     record["report_seconds"] = json!(t0.elapsed().as_secs_f64());
     write_record(&record_path, &record)?;
@@ -349,6 +373,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
     Ok(RunOutcome {
         out: a.out.clone(),
         record,
+        truth,
     })
 }
 

@@ -30,27 +30,7 @@ fn run_writes_everything_and_reuses_finished_stages() {
         .status()
         .unwrap();
     assert!(status.success());
-    let cap = tiny_capture();
-    let args = |extra: &[&str]| {
-        let mut v = vec![
-            "run".to_string(),
-            "--video".into(),
-            cap.join("flash.mp4").to_string_lossy().into_owned(),
-            "--reference".into(),
-            cap.join("reference.jpg").to_string_lossy().into_owned(),
-            "--camera".into(),
-            cap.join("camera.json").to_string_lossy().into_owned(),
-            "--out".into(),
-            copy.to_string_lossy().into_owned(),
-        ];
-        v.extend(extra.iter().map(|s| s.to_string()));
-        v
-    };
-    let run = |extra: &[&str]| {
-        let a = args(extra);
-        let refs: Vec<&str> = a.iter().map(String::as_str).collect();
-        svbrdf(&refs)
-    };
+    let run = |extra: &[&str]| crate::util::run_tiny(&copy, extra);
     let o = run(&[]);
     assert!(o.status.success(), "{}", stderr(&o));
     let s = stdout(&o);

@@ -69,23 +69,35 @@ pub fn skip_without(tool: &str, present: bool, install: &str) -> bool {
     true
 }
 
+/// `svbrdf run` of the shared tiny capture into `out`, with extra arguments.
+pub fn run_tiny(out: &Path, extra: &[&str]) -> Output {
+    let cap = tiny_capture();
+    let (video, reference, camera) = (
+        cap.join("flash.mp4"),
+        cap.join("reference.jpg"),
+        cap.join("camera.json"),
+    );
+    let mut args = vec![
+        "run",
+        "--video",
+        video.to_str().unwrap(),
+        "--reference",
+        reference.to_str().unwrap(),
+        "--camera",
+        camera.to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ];
+    args.extend_from_slice(extra);
+    svbrdf(&args)
+}
+
 /// One `svbrdf run` of the shared tiny capture.
 pub fn tiny_run() -> &'static Path {
     static DIR: OnceLock<PathBuf> = OnceLock::new();
     DIR.get_or_init(|| {
-        let cap = tiny_capture();
         let out = temp_dir().join("run");
-        let o = svbrdf(&[
-            "run",
-            "--video",
-            cap.join("flash.mp4").to_str().unwrap(),
-            "--reference",
-            cap.join("reference.jpg").to_str().unwrap(),
-            "--camera",
-            cap.join("camera.json").to_str().unwrap(),
-            "--out",
-            out.to_str().unwrap(),
-        ]);
+        let o = run_tiny(&out, &[]);
         assert!(o.status.success(), "run failed: {}", stderr(&o));
         out
     })
