@@ -57,6 +57,17 @@ pub struct AlignConfig {
     pub max_pairs_per_frame: usize,
     /// Test every pair in coarse matching instead of predicted overlaps (benchmarks).
     pub all_pairs: bool,
+    /// The second (no-flash) phone of a two-camera capture; its `frame_step` is the
+    /// second stream's (paper: 10).
+    pub second_camera: CameraDescription,
+    /// Second-stream time of the flash video's first frame, seconds; `None` finds it
+    /// from the flash onset.
+    pub sync_offset_s: Option<f64>,
+    /// Drop second-stream frames after the flash video's end instead of refusing the
+    /// capture (the paper requires the second stream to end first).
+    pub trim_second: bool,
+    /// Flash frames (nearest in time) each second-stream frame is matched with.
+    pub cross_pairs_per_frame: usize,
 }
 
 impl Default for AlignConfig {
@@ -83,6 +94,13 @@ impl Default for AlignConfig {
             iterations: 8,
             max_pairs_per_frame: 8,
             all_pairs: false,
+            second_camera: CameraDescription {
+                frame_step: 10,
+                ..CameraDescription::default()
+            },
+            sync_offset_s: None,
+            trim_second: false,
+            cross_pairs_per_frame: 3,
         }
     }
 }
@@ -97,6 +115,16 @@ impl AlignConfig {
     /// Check the numbers.
     pub fn validate(&self) -> Result<(), AlignError> {
         self.camera.validate()?;
+        self.second_camera.validate()?;
+        if let Some(o) = self.sync_offset_s {
+            if !o.is_finite() {
+                return Err(AlignError::invalid(
+                    "sync offset",
+                    o,
+                    "seconds on the second video's clock, a finite number",
+                ));
+            }
+        }
         if let Some(r) = &self.region {
             r.validate()?;
         }

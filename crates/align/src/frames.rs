@@ -21,7 +21,9 @@ use crate::{AlignError, Progress};
 pub struct FrameData {
     /// Frame number in the video.
     pub index: u64,
-    /// Time, seconds.
+    /// Camera stream: 0 the flash video, 1 the second (no-flash) video.
+    pub stream: u32,
+    /// Time on the flash camera's clock, seconds.
     pub time_s: f64,
     /// Full-resolution width.
     pub width: u32,
@@ -117,6 +119,7 @@ fn process(
     let thumb = downscaled(img, ts)?;
     Ok(FrameData {
         index,
+        stream: 0,
         time_s: index as f64 / fps.max(1e-9),
         width: img.width as u32,
         height: img.height as u32,

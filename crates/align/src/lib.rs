@@ -24,6 +24,7 @@ pub mod output;
 pub mod pose;
 pub mod reference;
 pub mod solve;
+pub mod sync;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -51,6 +52,10 @@ pub enum AlignError {
     /// The global solve failed.
     #[error("global solve: {0}")]
     Solve(String),
+    /// The second video of a two-camera capture is unusable (no flash onset, longer
+    /// than the flash video, or not alignable); `run` can fall back to one camera.
+    #[error("{0}")]
+    SecondStream(String),
     /// From the core.
     #[error(transparent)]
     Core(#[from] CoreError),
@@ -117,6 +122,30 @@ pub struct AlignSummary {
     pub timings: Vec<(String, f64)>,
     /// Coarse pairs verified by RANSAC, as (video frame, video frame, inliers).
     pub verified_pairs: Vec<(u64, u64, usize)>,
+    /// The second stream of a two-camera capture.
+    pub second: Option<SecondStreamSummary>,
+}
+
+/// What happened to the second stream of a two-camera capture.
+#[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
+pub struct SecondStreamSummary {
+    /// The second video.
+    pub video: PathBuf,
+    /// Its frame rate.
+    pub fps: f64,
+    /// Time on the second video's clock of the flash video's first frame, seconds.
+    pub sync_offset_s: f64,
+    /// The detected flash onset (absent when the offset was given by hand).
+    pub onset: Option<sync::Onset>,
+    /// Frames at the second frame step that were recorded before the flash came on.
+    pub before_onset: usize,
+    /// Frames at the second frame step after the flash video's end (dropped with
+    /// `trim_second`, refused otherwise).
+    pub after_end: usize,
+    /// Frame accounting after synchronisation (`disconnected` is unused).
+    pub frames: DropCounts,
+    /// Second-stream frames with verified matches to a flash frame.
+    pub cross_pairs: usize,
 }
 
 /// Inputs of [`align`].
@@ -126,6 +155,8 @@ pub struct AlignInputs {
     pub video: PathBuf,
     /// The reference photo.
     pub reference: PathBuf,
+    /// The second, no-flash video of a two-camera capture (paper 3.3).
+    pub second_video: Option<PathBuf>,
 }
 
 struct Timer(Vec<(String, f64)>, Instant);
@@ -191,15 +222,124 @@ pub fn align(
     };
     timer.lap("reference features");
 
+    let (second, mut second_summary) = match &inputs.second_video {
+        None => (None, None),
+        Some(v) => {
+            let (frames, summary) = second_stream(v, &inputs.video, cfg, dict, progress)?;
+            timer.lap("second video: sync + features");
+            (Some(frames), Some(summary))
+        }
+    };
+
     let result = matching::register(
         decoded,
+        second,
         &reference,
         ref_features.as_ref(),
         cfg,
         progress,
         &mut |n| timer.lap(n),
     )?;
+    if let Some(s) = &mut second_summary {
+        s.frames = result.second_drops.clone().unwrap_or_default();
+        s.cross_pairs = result.cross_pairs;
+        if s.frames.kept == 0 {
+            return Err(AlignError::SecondStream(format!(
+                "{}: none of its {} frames could be aligned to the flash video's panorama ({} blurry, {} without markers or matches, {} with an implausible pose or outside the flash video's time span)",
+                s.video.display(),
+                s.frames.decoded,
+                s.frames.blurry,
+                s.frames.unregistered,
+                s.frames.outside
+            )));
+        }
+    }
     output::write(
-        inputs, cfg, &reference, result, out, overwrite, timer.0, progress,
+        inputs,
+        cfg,
+        &reference,
+        result,
+        second_summary,
+        out,
+        overwrite,
+        timer.0,
+        progress,
     )
+}
+
+/// Synchronise the second video with the flash video and decode its frames at its
+/// frame step, on the flash camera's clock.
+fn second_stream(
+    video: &Path,
+    flash_video: &Path,
+    cfg: &AlignConfig,
+    dict: svbrdf_cv::aruco::Dictionary,
+    progress: &dyn Progress,
+) -> Result<(matching::SecondFrames, SecondStreamSummary), AlignError> {
+    let flash = svbrdf_cv::video::VideoReader::open(flash_video)?.info();
+    let flash_end_s = flash.frame_count.saturating_sub(1) as f64 / flash.fps.max(1e-9);
+    let (sync_offset_s, onset) = match cfg.sync_offset_s {
+        Some(o) => (o, None),
+        None => {
+            let (profiles, fps) = sync::decode_profiles(video, progress)?;
+            let o = sync::find_onset(&profiles, fps, cfg.second_camera.readout_s).map_err(|e| {
+                AlignError::SecondStream(format!(
+                    "{}: {e}; give the second video's time (seconds) of the flash video's first frame with --sync-offset",
+                    video.display()
+                ))
+            })?;
+            (o.time_s, Some(o))
+        }
+    };
+    let mut c2 = cfg.clone();
+    c2.camera = cfg.second_camera.clone();
+    let decoded = frames::decode_frames(video, &c2, dict, progress)?;
+    let fps = svbrdf_cv::video::VideoReader::open(video)?.info().fps;
+    let (mut before_onset, mut after_end) = (0, 0);
+    let mut kept = Vec::with_capacity(decoded.len());
+    for mut f in decoded {
+        f.stream = 1;
+        f.time_s = sync::flash_time(f.index, fps, sync_offset_s);
+        if f.time_s < 0.0 {
+            before_onset += 1;
+        } else if f.time_s > flash_end_s + 0.5 / flash.fps.max(1e-9) {
+            after_end += 1;
+        } else {
+            kept.push(f);
+        }
+    }
+    if after_end > 0 && !cfg.trim_second {
+        return Err(AlignError::SecondStream(format!(
+            "{}: {after_end} frame(s) at the second frame step fall after the flash video ends ({flash_end_s:.2} s after the sync point): the second video must stop before the flash video (paper 3.3); trim it, or pass --trim-second to drop them",
+            video.display()
+        )));
+    }
+    if kept.is_empty() {
+        return Err(AlignError::SecondStream(format!(
+            "{}: no frame lies within the flash video's time span after synchronisation (offset {sync_offset_s:.3} s)",
+            video.display()
+        )));
+    }
+    let intrinsics = svbrdf_core::geometry::Intrinsics::from_fov(
+        kept[0].width,
+        kept[0].height,
+        cfg.second_camera.fov_deg,
+    )?;
+    let summary = SecondStreamSummary {
+        video: video.to_path_buf(),
+        fps,
+        sync_offset_s,
+        onset,
+        before_onset,
+        after_end,
+        frames: DropCounts::default(),
+        cross_pairs: 0,
+    };
+    Ok((
+        matching::SecondFrames {
+            frames: kept,
+            intrinsics,
+        },
+        summary,
+    ))
 }

@@ -3,7 +3,7 @@
 use std::collections::{BTreeSet, HashMap, VecDeque};
 
 use rayon::prelude::*;
-use svbrdf_core::geometry::{Intrinsics, Mat3, Pose, Vec2};
+use svbrdf_core::geometry::{Intrinsics, Mat3, Pose, Vec2, Vec3};
 use svbrdf_core::homography::Homography;
 use svbrdf_core::image::ImageU8;
 use svbrdf_cv::features::{
@@ -61,18 +61,35 @@ pub struct Connectivity {
     pub kept: BTreeSet<(usize, usize)>,
 }
 
+/// The second stream's decoded frames (times already on the flash camera's clock,
+/// `stream` = 1) and its camera.
+pub struct SecondFrames {
+    /// Frames at the second stream's frame step, after the flash onset.
+    pub frames: Vec<FrameData>,
+    /// The second camera's intrinsics.
+    pub intrinsics: Intrinsics,
+}
+
 /// Result of registration, ready to be written.
 pub struct Registration {
-    /// Frames kept, with their data.
+    /// Frames kept, with their data: the flash stream's, then the second stream's.
     pub frames: Vec<FrameData>,
     /// Per kept frame: sub-frame rectangles and plane_from_pixel homographies.
     pub mappings: Vec<Vec<([f64; 4], Mat3)>>,
     /// Per kept frame: camera pose.
     pub poses: Vec<Pose>,
+    /// Per kept frame: light (flash) position, cm. For second-stream frames it is the
+    /// flash camera's at the synchronised time, interpolated between its frames.
+    pub lights: Vec<Vec3>,
     /// Intrinsics of the video camera.
     pub intrinsics: Intrinsics,
-    /// Frame accounting.
+    /// Frame accounting (flash stream).
     pub drops: DropCounts,
+    /// Frame accounting of the second stream (`disconnected` is unused), if any.
+    pub second_drops: Option<DropCounts>,
+    /// Second-stream frames matched to a flash frame (joint constraints between the
+    /// streams).
+    pub cross_pairs: usize,
     /// Coarse connectivity (over frames after blur selection).
     pub connectivity: Connectivity,
     /// Coarse pairs verified by RANSAC, as (video frame, video frame, inliers).
@@ -500,9 +517,29 @@ fn normaliser(w: u32, h: u32) -> Mat3 {
     )
 }
 
+/// Linear interpolation of a time-sorted track; `None` outside its span (one
+/// millisecond of slack at either end).
+pub fn interpolate_track(track: &[(f64, Vec3)], t: f64) -> Option<Vec3> {
+    let (first, last) = (track.first()?, track.last()?);
+    if t < first.0 - 1e-3 || t > last.0 + 1e-3 {
+        return None;
+    }
+    let k = track.partition_point(|(tt, _)| *tt <= t);
+    if k == 0 {
+        return Some(first.1);
+    }
+    if k == track.len() {
+        return Some(last.1);
+    }
+    let ((t0, a), (t1, b)) = (track[k - 1], track[k]);
+    let u = if t1 > t0 { (t - t0) / (t1 - t0) } else { 0.0 };
+    Some(a + (b - a) * u)
+}
+
 /// Coarse to fine registration of the decoded frames.
 pub fn register(
     decoded: Vec<FrameData>,
+    second: Option<SecondFrames>,
     rf: &ReferenceFrame,
     ref_features: Option<&ReferenceFeatures>,
     cfg: &AlignConfig,
@@ -582,8 +619,51 @@ pub fn register(
             }
         }
     }
-    let pairs: Vec<(usize, usize)> = pairs.into_iter().collect();
-    let frames: Vec<FrameData> = comp.iter().map(|&i| frames[i].clone()).collect();
+    let mut pairs: Vec<(usize, usize)> = pairs.into_iter().collect();
+    let mut frames: Vec<FrameData> = comp.iter().map(|&i| frames[i].clone()).collect();
+    let n_flash = frames.len();
+
+    // The second stream joins the same problem: its frames chain to their next two
+    // neighbours, and each one is matched with the flash frames nearest in time,
+    // which were lit by the same flash position (so highlights agree) and tie the two
+    // streams together.
+    let intrinsics2 = second.as_ref().map(|s| s.intrinsics);
+    let mut second_drops = None;
+    if let Some(sec) = second {
+        let metrics: Vec<f64> = sec.frames.iter().map(|f| f.blur).collect();
+        let blurry2: BTreeSet<usize> = blurry_frames(&metrics, cfg.blur_sigmas)
+            .into_iter()
+            .collect();
+        second_drops = Some(DropCounts {
+            decoded: sec.frames.len(),
+            blurry: blurry2.len(),
+            ..DropCounts::default()
+        });
+        let kept2: Vec<FrameData> = sec
+            .frames
+            .into_iter()
+            .enumerate()
+            .filter(|(i, _)| !blurry2.contains(i))
+            .map(|(_, f)| f)
+            .collect();
+        let (base, m) = (frames.len(), kept2.len());
+        for k in 0..m {
+            for d in 1..=2 {
+                if k + d < m {
+                    pairs.push((base + k, base + k + d));
+                }
+            }
+            let t = kept2[k].time_s;
+            let mut near: Vec<(f64, usize)> = (0..n_flash)
+                .map(|i| ((frames[i].time_s - t).abs(), i))
+                .collect();
+            near.sort_by(|a, b| a.0.total_cmp(&b.0));
+            for &(_, i) in near.iter().take(cfg.cross_pairs_per_frame) {
+                pairs.push((i, base + k));
+            }
+        }
+        frames.extend(kept2);
+    }
     let n = frames.len();
 
     // Fine matches between connected frames.
@@ -682,10 +762,12 @@ pub fn register(
         .collect();
     let mut pair_h: HashMap<(usize, usize), Mat3> = HashMap::new();
     let mut fine_pairs = 0;
+    let mut cross_pairs = 0;
     for (i, j, r) in &fine {
         if let Some((_, _, h)) = r {
             pair_h.insert((*i, *j), *h);
             fine_pairs += 1;
+            cross_pairs += usize::from(frames[*i].stream != frames[*j].stream);
         }
     }
     let mut changed = true;
@@ -708,31 +790,38 @@ pub fn register(
         }
     }
     let registered: Vec<usize> = (0..n).filter(|&i| init[i].is_some()).collect();
-    drops.unregistered = n - registered.len();
+    drops.unregistered = (0..n_flash).filter(|&i| init[i].is_none()).count();
+    if let Some(d) = &mut second_drops {
+        d.unregistered = (n_flash..n).filter(|&i| init[i].is_none()).count();
+    }
     if registered.is_empty() {
         return Err(AlignError::Connect(
             "no frame could be tied to the plane: no markers seen and no matches with the reference photo".into(),
         ));
     }
 
-    // Global solve over all sub-frames of registered frames.
-    let grid = Grid::new(width, height, cfg);
-    let nrm = normaliser(width, height);
-    let nrm_inv = nrm.try_inverse().unwrap_or_else(Mat3::identity);
-    let slot: HashMap<usize, usize> = registered
+    // Global solve over all sub-frames of registered frames (each stream has its
+    // own frame size, so its own sub-frame grid and normalisation).
+    let grids: Vec<Grid> = frames
         .iter()
-        .enumerate()
-        .map(|(k, &i)| (i, k))
+        .map(|f| Grid::new(f.width, f.height, cfg))
         .collect();
-    let sub = |frame: usize, p: Vec2| slot[&frame] * grid.len() + grid.cell(p);
-    let norm = |p: Vec2| Homography(nrm).apply(p).unwrap_or(p);
-    let mut init_blocks = Vec::with_capacity(registered.len() * grid.len());
+    let nrms: Vec<Mat3> = frames
+        .iter()
+        .map(|f| normaliser(f.width, f.height))
+        .collect();
+    let mut slot: HashMap<usize, usize> = HashMap::new();
+    let mut init_blocks = Vec::new();
     for &i in &registered {
-        let h = init[i].unwrap_or_else(Mat3::identity) * nrm_inv;
-        for _ in 0..grid.len() {
+        slot.insert(i, init_blocks.len());
+        let h = init[i].unwrap_or_else(Mat3::identity)
+            * nrms[i].try_inverse().unwrap_or_else(Mat3::identity);
+        for _ in 0..grids[i].len() {
             init_blocks.push(h);
         }
     }
+    let sub = |frame: usize, p: Vec2| slot[&frame] + grids[frame].cell(p);
+    let norm = |frame: usize, p: Vec2| Homography(nrms[frame]).apply(p).unwrap_or(p);
     let mut cons = Vec::new();
     for (i, j, r) in &fine {
         let (Some((a, b, _)), true, true) = (r, slot.contains_key(i), slot.contains_key(j)) else {
@@ -742,9 +831,9 @@ pub fn register(
             let (p, q) = (Vec2::new(p[0], p[1]), Vec2::new(q[0], q[1]));
             cons.push(Constraint::Pair {
                 a: sub(*i, p),
-                p: norm(p),
+                p: norm(*i, p),
                 b: sub(*j, q),
-                q: norm(q),
+                q: norm(*j, q),
                 w: 1.0,
             });
         }
@@ -754,7 +843,7 @@ pub fn register(
             let p = Vec2::new(p[0], p[1]);
             cons.push(Constraint::Anchor {
                 a: sub(i, p),
-                p: norm(p),
+                p: norm(i, p),
                 x: *x,
                 w: cfg.reference_weight,
             });
@@ -762,18 +851,18 @@ pub fn register(
         for (p, x) in &marker_anchors[i] {
             cons.push(Constraint::Anchor {
                 a: sub(i, *p),
-                p: norm(*p),
+                p: norm(i, *p),
                 x: *x,
                 w: 4.0,
             });
         }
-        for (a, b, p) in grid.seams() {
-            let base = slot[&i] * grid.len();
+        for (a, b, p) in grids[i].seams() {
+            let base = slot[&i];
             cons.push(Constraint::Pair {
                 a: base + a,
-                p: norm(p),
+                p: norm(i, p),
                 b: base + b,
-                q: norm(p),
+                q: norm(i, p),
                 w: cfg.overlap_weight,
             });
         }
@@ -786,18 +875,24 @@ pub fn register(
     lap("global solve");
 
     // Back to pixel coordinates, poses from the centre sub-frame, region check.
-    let centre_cell = grid.cell(Vec2::new(
-        0.5 * (f64::from(width) - 1.0),
-        0.5 * (f64::from(height) - 1.0),
-    ));
     let region = rf.marker_region().expanded(cfg.camera.marker_size_cm);
     let mut out_frames = Vec::new();
     let mut mappings = Vec::new();
     let mut poses = Vec::new();
-    for (k, &i) in registered.iter().enumerate() {
+    for &i in &registered {
+        let (grid, second) = (&grids[i], frames[i].stream != 0);
+        let (width, height) = (frames[i].width, frames[i].height);
+        let intrinsics = match (second, intrinsics2) {
+            (true, Some(k)) => k,
+            _ => intrinsics,
+        };
+        let centre_cell = grid.cell(Vec2::new(
+            0.5 * (f64::from(width) - 1.0),
+            0.5 * (f64::from(height) - 1.0),
+        ));
         let blocks: Vec<([f64; 4], Mat3)> = (0..grid.len())
             .map(|c| {
-                let h = solved[k * grid.len() + c] * nrm;
+                let h = solved[slot[&i] + c] * nrms[i];
                 (grid.rect(c), h / h[(2, 2)])
             })
             .collect();
@@ -829,21 +924,68 @@ pub fn register(
                     .and_then(|inv| pose_from_homography(&intrinsics, &inv))
             })
         else {
-            drops.unregistered += 1;
+            match (second, &mut second_drops) {
+                (true, Some(d)) => d.unregistered += 1,
+                _ => drops.unregistered += 1,
+            }
             continue;
         };
-        if !region.contains(Vec2::new(pose.centre.x, pose.centre.y))
-            || !blocks.iter().all(|b| b.1.iter().all(|v| v.is_finite()))
-        {
-            drops.outside += 1;
+        // The paper's check applies to the hand-held flash camera; the second camera
+        // stands beside the material by design and only has to be above it.
+        let plausible = if second {
+            pose.centre.z > 0.0
+        } else {
+            region.contains(Vec2::new(pose.centre.x, pose.centre.y))
+        };
+        if !plausible || !blocks.iter().all(|b| b.1.iter().all(|v| v.is_finite())) {
+            match (second, &mut second_drops) {
+                (true, Some(d)) => d.outside += 1,
+                _ => drops.outside += 1,
+            }
             continue;
         }
         out_frames.push(frames[i].clone());
         mappings.push(blocks);
         poses.push(pose);
     }
-    drops.kept = out_frames.len();
-    if out_frames.is_empty() {
+    // Light positions: the flash camera's own, and for the second stream the flash
+    // camera's at the synchronised time, interpolated between the nearest kept flash
+    // frames (frames outside their time span are dropped, not extrapolated).
+    let offset = Vec3::from(cfg.camera.flash_offset_cm);
+    let mut flash_track: Vec<(f64, Vec3)> = out_frames
+        .iter()
+        .zip(&poses)
+        .filter(|(f, _)| f.stream == 0)
+        .map(|(f, p)| (f.time_s, p.camera_to_world(offset)))
+        .collect();
+    flash_track.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let mut lights = Vec::with_capacity(out_frames.len());
+    let mut keep = Vec::with_capacity(out_frames.len());
+    for (f, p) in out_frames.iter().zip(&poses) {
+        if f.stream == 0 {
+            lights.push(p.camera_to_world(offset));
+            keep.push(true);
+            continue;
+        }
+        let light = interpolate_track(&flash_track, f.time_s);
+        keep.push(light.is_some());
+        if let Some(l) = light {
+            lights.push(l);
+        } else if let Some(d) = &mut second_drops {
+            d.outside += 1;
+        }
+    }
+    let mut it = keep.iter();
+    out_frames.retain(|_| *it.next().unwrap_or(&false));
+    let mut it = keep.iter();
+    mappings.retain(|_| *it.next().unwrap_or(&false));
+    let mut it = keep.iter();
+    poses.retain(|_| *it.next().unwrap_or(&false));
+    drops.kept = out_frames.iter().filter(|f| f.stream == 0).count();
+    if let Some(d) = &mut second_drops {
+        d.kept = out_frames.len() - drops.kept;
+    }
+    if drops.kept == 0 {
         return Err(AlignError::Connect(
             "every frame's camera pose fell outside the marker boundary".into(),
         ));
@@ -852,8 +994,11 @@ pub fn register(
         frames: out_frames,
         mappings,
         poses,
+        lights,
         intrinsics,
         drops,
+        second_drops,
+        cross_pairs,
         connectivity,
         verified_pairs,
         coarse_tested,

@@ -9,7 +9,7 @@ use svbrdf_core::capture::{
 };
 use svbrdf_core::color::srgb_to_linear;
 use svbrdf_core::fsutil::{write_json, StagingDir};
-use svbrdf_core::geometry::{mat3_to_rows, Vec2, Vec3};
+use svbrdf_core::geometry::{mat3_to_rows, Vec2};
 use svbrdf_core::image::ImageF32;
 use svbrdf_core::maps::{write_png, Encoding, PngDepth};
 use svbrdf_core::plane::PlaneGrid;
@@ -52,6 +52,7 @@ pub fn write(
     cfg: &AlignConfig,
     rf: &ReferenceFrame,
     reg: Registration,
+    second: Option<crate::SecondStreamSummary>,
     out: &Path,
     overwrite: bool,
     mut timings: Vec<(String, f64)>,
@@ -62,7 +63,13 @@ pub fn write(
     let dir = staging.path();
     let region = cfg.region.unwrap_or_else(|| rf.marker_region());
     // Default resolution: half of the frames' median sampling density on the plane.
-    let mut heights: Vec<f64> = reg.poses.iter().map(|p| p.centre.z).collect();
+    let mut heights: Vec<f64> = reg
+        .poses
+        .iter()
+        .zip(&reg.frames)
+        .filter(|(_, f)| f.stream == 0)
+        .map(|(p, _)| p.centre.z)
+        .collect();
     heights.sort_by(f64::total_cmp);
     let median_h = heights[heights.len() / 2];
     let px_per_cm = cfg
@@ -77,17 +84,26 @@ pub fn write(
         encoding: Encoding::Srgb,
         stream: 0,
     });
-    let offset = Vec3::from(cfg.camera.flash_offset_cm);
-    for (k, ((f, m), pose)) in reg
+    if let Some(s) = &second {
+        let v = std::path::absolute(&s.video).unwrap_or_else(|_| s.video.clone());
+        cap.sources.push(Source {
+            kind: SourceKind::Video,
+            path: v.to_string_lossy().into_owned(),
+            encoding: Encoding::Srgb,
+            stream: 1,
+        });
+    }
+    for (k, (((f, m), pose), light)) in reg
         .frames
         .iter()
         .zip(&reg.mappings)
         .zip(&reg.poses)
+        .zip(&reg.lights)
         .enumerate()
     {
         cap.frames.push(Frame {
             id: k as u32,
-            source: 0,
+            source: f.stream as usize,
             frame_index: Some(f.index),
             image: None,
             time_s: Some(f.time_s),
@@ -103,7 +119,7 @@ pub fn write(
                     .collect(),
             },
             camera_position: pose.centre.into(),
-            light_position: pose.camera_to_world(offset).into(),
+            light_position: (*light).into(),
         });
     }
     cap.save(dir)?;
@@ -165,14 +181,19 @@ pub fn write(
     )?;
     progress.advance(1);
 
-    // Trajectory over a dimmed panorama: cameras blue, flashes yellow, markers red.
+    // Trajectory over a dimmed panorama: cameras blue (second camera cyan, usually
+    // outside the picture), flashes yellow, markers red.
     let mut traj = pano.clone();
     traj.data.iter_mut().for_each(|v| *v *= 0.5);
-    for pose in &reg.poses {
+    for ((pose, light), f) in reg.poses.iter().zip(&reg.lights).zip(&reg.frames) {
         let c = grid.to_pixel(Vec2::new(pose.centre.x, pose.centre.y));
-        dot(&mut traj, c.x, c.y, 2.0, [0.1, 0.3, 1.0]);
-        let l = pose.camera_to_world(offset);
-        let lp = grid.to_pixel(Vec2::new(l.x, l.y));
+        let colour = if f.stream == 0 {
+            [0.1, 0.3, 1.0]
+        } else {
+            [0.1, 0.9, 0.9]
+        };
+        dot(&mut traj, c.x, c.y, 2.0, colour);
+        let lp = grid.to_pixel(Vec2::new(light.x, light.y));
         dot(&mut traj, lp.x, lp.y, 1.5, [1.0, 0.85, 0.1]);
     }
     for (_, corners) in &rf.markers {
@@ -229,11 +250,13 @@ pub fn write(
         unknowns: reg.solve.unknowns,
         timings,
         verified_pairs: reg.verified_pairs.clone(),
+        second,
     };
     #[derive(serde::Serialize)]
     struct Record<'a> {
         settings: &'a AlignConfig,
         video: String,
+        second_video: Option<String>,
         reference: String,
         reference_tilt_deg: f64,
         reference_height_cm: f64,
@@ -244,6 +267,10 @@ pub fn write(
         &Record {
             settings: cfg,
             video: inputs.video.display().to_string(),
+            second_video: inputs
+                .second_video
+                .as_ref()
+                .map(|v| v.display().to_string()),
             reference: inputs.reference.display().to_string(),
             reference_tilt_deg: rf.tilt.to_degrees(),
             reference_height_cm: rf.height,

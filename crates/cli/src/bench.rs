@@ -154,16 +154,27 @@ pub fn align_accuracy(
     let text = std::fs::read_to_string(synth_dir.join("ground_truth/truth.json"))?;
     let truth: svbrdf_synth::truth::GroundTruth = serde_json::from_str(&text)?;
     let stream = &truth.streams[0];
-    let mut errs = Vec::new();
-    let mut cam_errs = Vec::new();
-    let mut light_errs = Vec::new();
+    // Per camera stream: plane errors (px), camera and light position errors (mm).
+    let mut errs = [Vec::new(), Vec::new()];
+    let mut cam_errs = [Vec::new(), Vec::new()];
+    let mut light_errs = [Vec::new(), Vec::new()];
     let mut per_frame: Vec<serde_json::Value> = Vec::new();
     for f in &cap.frames {
-        let before = errs.len();
         let Some(idx) = f.frame_index else { continue };
-        let Some(gt) = stream.frames.get(idx as usize) else {
+        let s = cap
+            .sources
+            .get(f.source)
+            .map_or(0, |s| s.stream as usize)
+            .min(1);
+        let Some(gt) = truth
+            .streams
+            .get(s)
+            .and_then(|st| st.frames.get(idx as usize))
+        else {
             continue;
         };
+        let (errs, cam_errs, light_errs) = (&mut errs[s], &mut cam_errs[s], &mut light_errs[s]);
+        let before = errs.len();
         let cam = Camera {
             intrinsics: gt.camera.intrinsics,
             distortion: gt.camera.distortion,
@@ -189,7 +200,7 @@ pub fn align_accuracy(
         }
         let mut mine: Vec<f64> = errs[before..].to_vec();
         mine.sort_by(f64::total_cmp);
-        if !mine.is_empty() {
+        if !mine.is_empty() && s == 0 {
             per_frame.push(json!([
                 idx,
                 mine[mine.len() / 2],
@@ -209,10 +220,13 @@ pub fn align_accuracy(
         v.sort_by(f64::total_cmp);
         v[((v.len() - 1) as f64 * f).round() as usize]
     };
-    Ok(json!({
+    let [mut errs, mut errs2] = errs;
+    let [mut cam_errs, mut cam_errs2] = cam_errs;
+    let [mut light_errs, mut light_errs2] = light_errs;
+    let mut out = json!({
         "bench": "align_accuracy",
         "preset": truth.config.preset,
-        "frames_kept": cap.frames.len(),
+        "frames_kept": cap.frames.len() - cam_errs2.len(),
         "frames_in_video": stream.frames.len(),
         "px_per_cm": cap.px_per_cm,
         "samples": errs.len(),
@@ -222,7 +236,27 @@ pub fn align_accuracy(
         "camera_error_mm_p95": q(&mut cam_errs, 0.95),
         "flash_error_mm_median": q(&mut light_errs, 0.5),
         "per_frame_px_median_p95": per_frame,
-    }))
+    });
+    if let Some(st) = truth.streams.get(1) {
+        // The sync error: our offset against the truth's (the second stream's frame 0
+        // is at start_time_s on the flash clock), in second-stream frames.
+        let rec: Option<serde_json::Value> =
+            svbrdf_core::fsutil::read_json(&capture_dir.join("align.json")).ok();
+        let offset = rec
+            .as_ref()
+            .and_then(|r| r["summary"]["second"]["sync_offset_s"].as_f64());
+        out["second_stream"] = json!({
+            "frames_kept": cam_errs2.len(),
+            "sync_offset_s": offset,
+            "sync_offset_true_s": -st.start_time_s,
+            "sync_error_frames": offset.map(|o| (o + st.start_time_s).abs() * st.fps),
+            "align_error_px_median": q(&mut errs2, 0.5),
+            "align_error_px_p95": q(&mut errs2, 0.95),
+            "camera_error_mm_median": q(&mut cam_errs2, 0.5),
+            "light_error_mm_median": q(&mut light_errs2, 0.5),
+        });
+    }
+    Ok(out)
 }
 
 /// Load the simulator's ground-truth maps for [`svbrdf_fit::evaluate`].

@@ -108,7 +108,7 @@ struct SynthArgs {
     overwrite: bool,
 }
 
-#[derive(Args)]
+#[derive(Args, Clone)]
 #[command(allow_negative_numbers = true)]
 struct AlignArgs {
     /// The flash video (any container and codec FFmpeg decodes; rotation metadata is applied).
@@ -152,9 +152,35 @@ struct AlignArgs {
     /// Test all frame pairs in coarse alignment (slow; for benchmarks).
     #[arg(long)]
     all_pairs: bool,
+    #[command(flatten)]
+    second: SecondArgs,
     /// Replace the output folder if it exists.
     #[arg(long)]
     overwrite: bool,
+}
+
+/// The second phone of a two-camera capture (paper section 3.3).
+#[derive(Args, Clone, Default)]
+#[command(allow_negative_numbers = true)]
+pub struct SecondArgs {
+    /// A second, no-flash video filmed from an oblique angle while the flash video was
+    /// recorded; it must start before the flash video (the flash onset synchronises the
+    /// two) and stop before it.
+    #[arg(long)]
+    pub second_video: Option<PathBuf>,
+    /// The second phone's description (JSON, as --camera; `frame_step` is the second
+    /// stream's, `readout_s` its rolling-shutter readout in seconds, 0 if unknown).
+    /// Missing fields: 70 degrees, every 10th frame (the paper's two-camera setting).
+    #[arg(long)]
+    pub second_camera: Option<PathBuf>,
+    /// Time, in seconds on the second video's clock, of the flash video's first frame
+    /// (default: found from the flash onset).
+    #[arg(long)]
+    pub sync_offset: Option<f64>,
+    /// Drop second-video frames recorded after the flash video ended instead of
+    /// refusing the capture.
+    #[arg(long)]
+    pub trim_second: bool,
 }
 
 fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
@@ -194,6 +220,29 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
         })?);
     }
     c.all_pairs = a.all_pairs;
+    if let Some(p) = &a.second.second_camera {
+        // Missing fields take the paper's two-camera values, not the flash phone's.
+        let raw: serde_json::Value = svbrdf_core::fsutil::read_json(p)?;
+        let mut merged = serde_json::to_value(&c.second_camera)?;
+        if let (Some(m), Some(r)) = (merged.as_object_mut(), raw.as_object()) {
+            for (k, v) in r {
+                m.insert(k.clone(), v.clone());
+            }
+        }
+        c.second_camera =
+            serde_json::from_value(merged).with_context(|| format!("reading {}", p.display()))?;
+        c.second_camera
+            .validate()
+            .with_context(|| format!("in {}", p.display()))?;
+    } else {
+        // The same phone model as the flash video, at the paper's two-camera step.
+        c.second_camera = svbrdf_align::CameraDescription {
+            frame_step: c.second_camera.frame_step,
+            ..c.camera.clone()
+        };
+    }
+    c.sync_offset_s = a.second.sync_offset;
+    c.trim_second = a.second.trim_second;
     c.validate()?;
     Ok(c)
 }
@@ -206,6 +255,7 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     let inputs = svbrdf_align::AlignInputs {
         video: a.video.clone(),
         reference: a.reference.clone(),
+        second_video: a.second.second_video.clone(),
     };
     let s = svbrdf_align::align(&inputs, &cfg, &a.out, a.overwrite, &progress)?;
     let f = &s.frames;
@@ -218,6 +268,22 @@ fn run_align(a: &AlignArgs) -> Result<()> {
         "matching: {} coarse pairs tested, {} connected, {} fine pairs; {} frames see markers, {} anchored to the reference photo",
         s.coarse_pairs_tested, s.connected_pairs, s.fine_pairs, s.frames_with_markers, s.reference_anchored
     );
+    if let Some(t) = &s.second {
+        let g = &t.frames;
+        say!(
+            "second video: flash video starts at {:.3} s{}; {} frames before the onset and {} after the flash video's end left out; {} used, {} kept; dropped {} blurry, {} unregistered, {} implausible; {} matched with flash frames",
+            t.sync_offset_s,
+            if t.onset.is_some() { " (flash onset)" } else { " (given)" },
+            t.before_onset,
+            t.after_end,
+            g.decoded,
+            g.kept,
+            g.blurry,
+            g.unregistered,
+            g.outside,
+            t.cross_pairs
+        );
+    }
     say!(
         "global solve: {} unknowns, residual rms {:.4} cm, median {:.4} cm",
         s.unknowns,

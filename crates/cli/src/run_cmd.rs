@@ -126,6 +126,12 @@ pub struct RunArgs {
     /// Allow replacing an output folder that holds a run of other inputs.
     #[arg(long)]
     pub overwrite: bool,
+    #[command(flatten)]
+    pub second: crate::SecondArgs,
+    /// With --second-video: if the second video cannot be used (no flash onset, too
+    /// long, not alignable), warn and fit the flash video alone instead of stopping.
+    #[arg(long)]
+    pub one_camera_fallback: bool,
     /// For simulated captures: the `svbrdf synth` folder whose ground truth the
     /// alignment and the maps are compared with (figures and pictures in truth/ and in
     /// the report).
@@ -151,6 +157,8 @@ impl RunArgs {
             seed: None,
             force: true,
             overwrite: true,
+            second: crate::SecondArgs::default(),
+            one_camera_fallback: false,
             truth: Some(capture.to_path_buf()),
         }
     }
@@ -229,6 +237,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         fine_inlier_px: None,
         subframes: None,
         all_pairs: false,
+        second: a.second.clone(),
         overwrite: true,
     };
     let fit_args = crate::fit_cmd::FitArgs {
@@ -259,6 +268,8 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         "video": file_identity(&a.video)?,
         "reference": file_identity(&a.reference)?,
         "camera": match &a.camera { Some(c) => file_identity(c)?, None => Value::Null },
+        "second_video": match &a.second.second_video { Some(v) => file_identity(v)?, None => Value::Null },
+        "second_camera": match &a.second.second_camera { Some(c) => file_identity(c)?, None => Value::Null },
     });
     let record_path = a.out.join(RUN_FILE);
     let previous: Option<Value> = if record_path.exists() {
@@ -311,7 +322,22 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         (
             "align",
             &align_args.out,
-            Box::new(|| crate::run_align(&align_args)),
+            Box::new(|| match crate::run_align(&align_args) {
+                Err(e)
+                    if a.one_camera_fallback
+                        && matches!(
+                            e.downcast_ref::<svbrdf_align::AlignError>(),
+                            Some(svbrdf_align::AlignError::SecondStream(_))
+                        ) =>
+                {
+                    say!("warning: {e}");
+                    say!("warning: --one-camera-fallback: aligning the flash video alone");
+                    let mut one = align_args.clone();
+                    one.second = crate::SecondArgs::default();
+                    crate::run_align(&one)
+                }
+                r => r,
+            }),
         ),
         (
             "fit",

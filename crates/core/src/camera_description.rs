@@ -20,8 +20,13 @@ pub struct CameraDescription {
     pub marker_size_cm: f64,
     /// OpenCV marker dictionary name (paper: DICT_6X6_250).
     pub marker_dictionary: String,
-    /// Keep every n-th video frame (paper: 5).
+    /// Keep every n-th video frame (paper: 5 for the flash video; 10 for both streams
+    /// of a two-camera capture).
     pub frame_step: u32,
+    /// Rolling-shutter readout time, top row to bottom row, seconds; 0 when unknown.
+    /// Only the two-camera synchronisation uses it, to place the flash onset within
+    /// a frame.
+    pub readout_s: f64,
 }
 
 impl Default for CameraDescription {
@@ -32,6 +37,7 @@ impl Default for CameraDescription {
             marker_size_cm: 1.6,
             marker_dictionary: "DICT_6X6_250".into(),
             frame_step: 5,
+            readout_s: 0.0,
         }
     }
 }
@@ -59,6 +65,13 @@ impl CameraDescription {
                 "marker size",
                 self.marker_size_cm,
                 "cm, > 0",
+            ));
+        }
+        if !(self.readout_s >= 0.0 && self.readout_s < 1.0) {
+            return Err(CoreError::invalid(
+                "rolling-shutter readout",
+                self.readout_s,
+                "seconds, in [0, 1)",
             ));
         }
         if self.frame_step == 0 {

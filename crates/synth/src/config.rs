@@ -10,10 +10,10 @@ use serde::{Deserialize, Serialize};
 use crate::SynthError;
 
 /// Names accepted by `--preset`.
-pub const PRESETS: &[&str] = &["tiny", "paper"];
+pub const PRESETS: &[&str] = &["tiny", "paper", "two-camera"];
 
 /// Built-in procedural materials accepted by `--material`.
-pub const MATERIALS: &[&str] = &["patchwork", "leather", "brushed-metal", "tiles"];
+pub const MATERIALS: &[&str] = &["patchwork", "leather", "brushed-metal", "tiles", "facets"];
 
 /// Where the material comes from.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -182,6 +182,7 @@ impl SynthConfig {
         match name {
             "tiny" => Ok(Self::tiny()),
             "paper" => Ok(Self::paper()),
+            "two-camera" => Ok(Self::two_camera()),
             other => Err(SynthError::invalid(
                 "preset",
                 format!("{other:?}"),
@@ -274,17 +275,30 @@ impl SynthConfig {
         }
     }
 
-    /// A second camera suited to this preset's region.
+    /// The two-camera preset (paper 3.3): `tiny` with a second, no-flash camera and the
+    /// `facets` material, whose glossy tilted facets one camera cannot pin down.
+    pub fn two_camera() -> Self {
+        let mut c = Self {
+            preset: "two-camera".into(),
+            material: MaterialSource::Procedural("facets".into()),
+            ..Self::tiny()
+        };
+        c.second_camera = Some(c.default_second_camera());
+        c
+    }
+
+    /// A second camera suited to this preset's region: a phone on a stand, landscape,
+    /// far enough that all four markers stay in view at 40 degrees from the normal.
     pub fn default_second_camera(&self) -> SecondCameraSpec {
         let reach = 0.5 * self.region_cm[0].max(self.region_cm[1]);
         SecondCameraSpec {
-            width: self.video.width,
-            height: self.video.height,
+            width: self.video.width.max(self.video.height),
+            height: self.video.width.min(self.video.height),
             fov_deg: 65.0,
             fps: 30.0,
             oblique_deg: 40.0,
             azimuth_deg: 200.0,
-            distance_cm: (2.5 * reach).max(15.0),
+            distance_cm: 4.5 * reach,
             lead_s: 0.413,
             readout_s: 0.02,
         }

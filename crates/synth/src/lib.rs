@@ -12,6 +12,7 @@
 //! OUT/flash.mp4                flash video (H.264, sRGB)
 //! OUT/second.mp4               second camera (optional)
 //! OUT/camera.json              the phone description that `align` takes
+//! OUT/second_camera.json       the second phone's description (optional)
 //! OUT/ground_truth/truth.json  cameras, lights, markers, settings
 //! OUT/ground_truth/maps/*.exr  linear maps (+ PNG previews)
 //! OUT/ground_truth/holdout/*   held-out relighting (linear EXR + sRGB PNG)
@@ -351,9 +352,24 @@ pub fn synthesize(
         marker_size_cm: cfg.markers.size_cm,
         marker_dictionary: cfg.markers.dictionary.clone(),
         frame_step: cfg.frame_step,
+        readout_s: 0.0,
     };
     write_json(&dir.join("camera.json"), &camdesc)?;
     files.push("camera.json".into());
+    if let Some(sc) = &cfg.second_camera {
+        // The second phone's own description: its lens, and the paper's frame step
+        // for two-camera captures. Its flash offset is unused (its flash is off).
+        write_json(
+            &dir.join("second_camera.json"),
+            &CameraDescription {
+                fov_deg: sc.fov_deg,
+                frame_step: 10,
+                readout_s: sc.readout_s,
+                ..camdesc.clone()
+            },
+        )?;
+        files.push("second_camera.json".into());
+    }
     let truth = GroundTruth {
         format: TRUTH_FORMAT.into(),
         version: 1,
@@ -432,6 +448,7 @@ fn render_second_camera(
         rng.random_range(0.0..std::f64::consts::TAU),
         rng.random_range(0.0..std::f64::consts::TAU),
     );
+    let reach = 0.5 * cfg.region_cm[0].max(cfg.region_cm[1]);
     let mut writer = VideoWriter::create(&dir.join("second.mp4"), sc.fps, sc.width, sc.height)?;
     let mut frames = Vec::with_capacity(n as usize);
     let mut onset = None;
@@ -440,7 +457,10 @@ fn render_second_camera(
         let t2 = j as f64 / sc.fps;
         let t = t2 - sc.lead_s; // flash camera clock
         let wob = Vec3::new((0.7 * t2 + p1).sin(), (0.5 * t2 + p2).sin(), 0.0) * 0.6;
-        let pose = Pose::look_at(base + wob, wob * 0.5, Vec3::z())?;
+        // Aim a little towards the near side, which perspective makes larger, so
+        // that the whole marker square stays in view.
+        let aim = Vec3::new(base.x, base.y, 0.0).normalize() * 0.15 * reach;
+        let pose = Pose::look_at(base + wob, wob * 0.5 + aim, Vec3::z())?;
         let cam = Camera {
             intrinsics: intr,
             distortion: RadialDistortion { k1: -0.04, k2: 0.0 },

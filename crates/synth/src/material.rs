@@ -39,6 +39,9 @@ struct Texel {
     rho_s: [f64; 3],
     alpha: [f64; 2],
     height_cm: f64,
+    /// Extra surface slope (dh/dx, dh/dy) on top of the height field's: facets tilt
+    /// without the height steps at their borders that a tilted height field would need.
+    slope: [f64; 2],
 }
 
 /// A base material of the procedural presets.
@@ -95,6 +98,7 @@ impl MaterialMaps {
                 "leather" => leather(seed, x, y, f),
                 "brushed-metal" => brushed(seed, x, y, f),
                 "tiles" => tiles(seed, x, y, f, cell),
+                "facets" => facets(seed, x, y, f, cell),
                 _ => patchwork(seed, x, y, f, cell),
             }
         };
@@ -141,8 +145,8 @@ impl MaterialMaps {
                 let hy = |rr: usize| texels[rr * w + c].height_cm;
                 let (c0, c1) = (c.saturating_sub(1), (c + 1).min(w - 1));
                 let (r0, r1) = (r.saturating_sub(1), (r + 1).min(h - 1));
-                let dhdx = (hx(c1) - hx(c0)) / (step * (c1 - c0).max(1) as f64);
-                let dhdy = (hy(r0) - hy(r1)) / (step * (r1 - r0).max(1) as f64);
+                let dhdx = (hx(c1) - hx(c0)) / (step * (c1 - c0).max(1) as f64) + t.slope[0];
+                let dhdy = (hy(r0) - hy(r1)) / (step * (r1 - r0).max(1) as f64) + t.slope[1];
                 let n = Vec3::new(-dhdx, -dhdy, 1.0).normalize();
                 normal
                     .pixel_mut(c, r)
@@ -242,6 +246,7 @@ impl MaterialMaps {
                     rho_s: s.map(f64::from),
                     alpha: [f64::from(a[0]).max(0.01), f64::from(a[1]).max(0.01)],
                     height_cm: 0.0,
+                    slope: [0.0; 2],
                 }
             })
             .collect();
@@ -372,6 +377,7 @@ fn base_texel(seed: u64, b: Base, x: f64, y: f64, f: f64, height_cm: f64) -> Tex
         rho_s,
         alpha: b.alpha,
         height_cm,
+        slope: [0.0; 2],
     }
 }
 
@@ -433,6 +439,34 @@ fn patchwork(seed: u64, x: f64, y: f64, f: f64, cell: f64) -> Texel {
         3 => gold(seed, x, y, f),
         _ => paint(seed, x, y, f),
     }
+}
+
+const GLOSS: Base = Base {
+    rho_d: [0.08, 0.16, 0.10],
+    rho_s: [0.45, 0.45, 0.45],
+    alpha: [0.10, 0.10],
+};
+
+/// The two-camera test material (paper 3.3): glossy Voronoi facets, each tilted by
+/// 15-30 degrees in its own direction. With the light always beside the camera, a
+/// bright facet tilted away is hard to tell from a darker one facing the camera.
+fn facets(seed: u64, x: f64, y: f64, f: f64, cell: f64) -> Texel {
+    let (id, d1, d2) = voronoi(seed ^ 0xFACE, x / cell, y / cell);
+    if (d2 - d1) * cell < 1.2 * f {
+        let mut t = base_texel(seed, GROUT, x, y, f, 0.0);
+        t.alpha = GROUT.alpha;
+        return t;
+    }
+    let h = |k: u64| {
+        let v = id.wrapping_mul(0x9E37_79B9_7F4A_7C15) ^ k;
+        ((v >> 11) as f64) / ((1u64 << 53) as f64)
+    };
+    let tilt = (15.0 + 15.0 * h(1)).to_radians();
+    let az = std::f64::consts::TAU * h(2);
+    let base = if id % 2 == 0 { GLOSS } else { GOLD };
+    let mut t = base_texel(seed, base, x, y, f, 0.0);
+    t.slope = [tilt.tan() * az.cos(), tilt.tan() * az.sin()];
+    t
 }
 
 fn tiles(seed: u64, x: f64, y: f64, f: f64, cell: f64) -> Texel {
