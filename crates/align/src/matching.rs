@@ -647,13 +647,13 @@ pub fn register(
             .map(|(_, f)| f)
             .collect();
         let (base, m) = (frames.len(), kept2.len());
-        for k in 0..m {
+        for (k, f) in kept2.iter().enumerate() {
             for d in 1..=2 {
                 if k + d < m {
                     pairs.push((base + k, base + k + d));
                 }
             }
-            let t = kept2[k].time_s;
+            let t = f.time_s;
             let mut near: Vec<(f64, usize)> = (0..n_flash)
                 .map(|i| ((frames[i].time_s - t).abs(), i))
                 .collect();
@@ -1007,4 +1007,26 @@ pub fn register(
         with_markers,
         solve: report,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn light_track_interpolates_inside_and_refuses_outside() {
+        let track = vec![
+            (0.0, Vec3::new(0.0, 0.0, 10.0)),
+            (0.5, Vec3::new(1.0, 2.0, 12.0)),
+            (1.0, Vec3::new(3.0, 2.0, 12.0)),
+        ];
+        let p = interpolate_track(&track, 0.25).unwrap();
+        assert!((p - Vec3::new(0.5, 1.0, 11.0)).norm() < 1e-12);
+        let p = interpolate_track(&track, 0.75).unwrap();
+        assert!((p - Vec3::new(2.0, 2.0, 12.0)).norm() < 1e-12);
+        assert_eq!(interpolate_track(&track, 1.0), Some(track[2].1));
+        assert!(interpolate_track(&track, -0.01).is_none());
+        assert!(interpolate_track(&track, 1.01).is_none());
+        assert!(interpolate_track(&[], 0.0).is_none());
+    }
 }

@@ -56,6 +56,11 @@ pub struct BenchArgs {
     /// Working folder of --preset: capture/ (reused when complete) and run/.
     #[arg(long, requires = "preset")]
     dir: Option<std::path::PathBuf>,
+    /// With --preset: render the capture with a second, no-flash camera too (the
+    /// `two-camera` preset always has one), run the pipeline with --second-video and
+    /// again with the flash video alone (run-one-camera/), and report both.
+    #[arg(long, requires = "preset")]
+    second_video: bool,
     /// Samples per BRDF measurement.
     #[arg(long, default_value_t = 4_000_000)]
     samples: usize,
@@ -502,11 +507,20 @@ pub fn truth_section(
 }
 
 /// The whole pipeline on a simulated capture of `preset`, measured against its truth.
-pub fn pipeline(preset: &str, dir: &std::path::Path) -> Result<serde_json::Value> {
-    let cfg = svbrdf_synth::SynthConfig::preset(preset)?;
+pub fn pipeline(
+    preset: &str,
+    dir: &std::path::Path,
+    second_video: bool,
+) -> Result<serde_json::Value> {
+    let mut cfg = svbrdf_synth::SynthConfig::preset(preset)?;
+    if second_video && cfg.second_camera.is_none() {
+        cfg.second_camera = Some(cfg.default_second_camera());
+    }
+    let two = cfg.second_camera.is_some();
     let capture = dir.join("capture");
     let complete = capture.join("ground_truth").join("truth.json").exists()
-        && capture.join("flash.mp4").exists();
+        && capture.join("flash.mp4").exists()
+        && (!two || capture.join("second.mp4").exists());
     let synth_seconds = if complete {
         eprintln!("bench: reusing the capture in {}", capture.display());
         None
@@ -520,11 +534,18 @@ pub fn pipeline(preset: &str, dir: &std::path::Path) -> Result<serde_json::Value
         svbrdf_synth::synthesize(&cfg, &capture, true, &crate::progress::Bars::new())?;
         Some(t.elapsed().as_secs_f64())
     };
-    let run_args = crate::run_cmd::RunArgs::for_synthetic_capture(
+    let mut run_args = crate::run_cmd::RunArgs::for_synthetic_capture(
         &capture,
         dir.join("run"),
         cfg.map_px_per_cm,
     );
+    if two {
+        run_args.second = crate::SecondArgs {
+            second_video: Some(capture.join("second.mp4")),
+            second_camera: Some(capture.join("second_camera.json")),
+            ..crate::SecondArgs::default()
+        };
+    }
     let t = Instant::now();
     let outcome = crate::run_cmd::run_pipeline(&run_args)?;
     // The comparison with the truth is the benchmark's, not the pipeline's.
@@ -538,6 +559,36 @@ pub fn pipeline(preset: &str, dir: &std::path::Path) -> Result<serde_json::Value
     let align_rec: serde_json::Value = svbrdf_core::fsutil::read_json(&aligned.join("align.json"))?;
     let fit_rec: serde_json::Value = svbrdf_core::fsutil::read_json(&maps.join("fit.json"))?;
     let stages = &outcome.record["stages"];
+    let maps_figures = |acc: &svbrdf_fit::evaluate::Accuracy| {
+        json!({
+            "diffuse_rmse": acc.diffuse_rmse,
+            "albedo_scale": acc.albedo_scale,
+            "normal_mean_deg": acc.normal_mean_deg,
+            "normal_median_deg": acc.normal_median_deg,
+            "relight_relative_rmse_mean": acc.relight_relative_rmse_mean,
+            "relight_relative_rmse": acc.relight_relative_rmse,
+        })
+    };
+    // Two cameras: the same capture through the flash video alone, for comparison.
+    let one_camera = if two {
+        let one_args = crate::run_cmd::RunArgs::for_synthetic_capture(
+            &capture,
+            dir.join("run-one-camera"),
+            cfg.map_px_per_cm,
+        );
+        let one = crate::run_cmd::run_pipeline(&one_args)?;
+        let Some((_, acc1)) = &one.truth else {
+            anyhow::bail!("the one-camera pipeline did not compare with the truth");
+        };
+        let f = maps_figures(acc1);
+        json!({
+            "relight_relative_rmse_mean_one_camera": f["relight_relative_rmse_mean"],
+            "relight_relative_rmse_mean_two_cameras": acc.relight_relative_rmse_mean,
+            "one_camera_maps": f,
+        })
+    } else {
+        serde_json::Value::Null
+    };
     Ok(json!({
         "bench": "pipeline",
         "preset": preset,
@@ -557,14 +608,9 @@ pub fn pipeline(preset: &str, dir: &std::path::Path) -> Result<serde_json::Value
             "camera_error_mm_median": align["camera_error_mm_median"],
             "flash_error_mm_median": align["flash_error_mm_median"],
         },
-        "maps": {
-            "diffuse_rmse": acc.diffuse_rmse,
-            "albedo_scale": acc.albedo_scale,
-            "normal_mean_deg": acc.normal_mean_deg,
-            "normal_median_deg": acc.normal_median_deg,
-            "relight_relative_rmse_mean": acc.relight_relative_rmse_mean,
-            "relight_relative_rmse": acc.relight_relative_rmse,
-        },
+        "maps": maps_figures(acc),
+        "second_stream": align["second_stream"],
+        "two_cameras": one_camera,
         "clusters": {"initial": fit_rec["summary"]["initial_clusters"], "final": fit_rec["summary"]["final_clusters"]},
     }))
 }
@@ -576,7 +622,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
             .dir
             .clone()
             .unwrap_or_else(|| std::path::PathBuf::from(format!("bench-{p}")));
-        println!("{}", pipeline(p, &dir)?);
+        println!("{}", pipeline(p, &dir, a.second_video)?);
         if a.no_brdf {
             return Ok(());
         }

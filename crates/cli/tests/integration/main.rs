@@ -6,4 +6,5 @@ mod bad_input;
 mod fit;
 mod run;
 mod synth;
+mod two_camera;
 mod util;
