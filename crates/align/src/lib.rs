@@ -148,6 +148,26 @@ pub struct SecondStreamSummary {
     pub cross_pairs: usize,
 }
 
+impl SecondStreamSummary {
+    /// One line for people: synchronisation and frame accounting.
+    pub fn describe(&self) -> String {
+        let g = &self.frames;
+        format!(
+            "flash video starts at {:.3} s of the second video{}; left out {} frames before the flash onset and {} after the flash video's end; of {} frames {} kept, dropped {} blurry, {} unregistered, {} implausible; {} matched with flash frames",
+            self.sync_offset_s,
+            if self.onset.is_some() { " (flash onset)" } else { " (given)" },
+            self.before_onset,
+            self.after_end,
+            g.decoded,
+            g.kept,
+            g.blurry,
+            g.unregistered,
+            g.outside,
+            self.cross_pairs
+        )
+    }
+}
+
 /// Inputs of [`align`].
 #[derive(Debug, Clone)]
 pub struct AlignInputs {

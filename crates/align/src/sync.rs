@@ -182,13 +182,21 @@ mod tests {
 
     #[test]
     fn onset_within_a_frame_with_and_without_readout() {
-        for onset in [0.2, 0.413, 0.5001, 1.0] {
-            let p = stream(60, 30.0, onset, 0.02);
-            let o = find_onset(&p, 30.0, 0.02).unwrap();
-            // Where the onset falls between two frames the gap (period - readout) bounds it.
-            assert!((o.time_s - onset).abs() < 0.5 / 30.0, "{onset}: {o:?}");
-            let o = find_onset(&p, 30.0, 0.0).unwrap();
-            assert!((o.time_s - onset).abs() < 1.0 / 30.0, "{onset}: {o:?}");
+        // Second phones at other frame rates than the flash phone's 30 fps.
+        for fps in [24.0, 30.0, 60.0] {
+            let readout = 0.6 / fps;
+            for onset in [0.2, 0.413, 0.5001, 1.0] {
+                let p = stream(90, fps, onset, readout);
+                let o = find_onset(&p, fps, readout).unwrap();
+                // Between two frames, the gap (period - readout) bounds the onset.
+                assert!((o.time_s - onset).abs() < 0.5 / fps, "{fps} {onset}: {o:?}");
+                let o = find_onset(&p, fps, 0.0).unwrap();
+                assert!((o.time_s - onset).abs() < 1.0 / fps, "{fps} {onset}: {o:?}");
+                // Frame times on the flash clock follow.
+                let j = o.frame + 3;
+                let t = flash_time(j, fps, o.time_s);
+                assert!((t - (j as f64 / fps - onset)).abs() < 1.0 / fps);
+            }
         }
     }
 

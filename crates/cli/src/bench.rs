@@ -502,6 +502,9 @@ pub fn truth_section(
     ] {
         figures[k] = align[k].clone();
     }
+    if align["second_stream"].is_object() {
+        figures["second_stream"] = align["second_stream"].clone();
+    }
     svbrdf_core::fsutil::write_json(&truth_dir.join("accuracy.json"), &figures)?;
     Ok((align, acc))
 }

@@ -269,20 +269,7 @@ fn run_align(a: &AlignArgs) -> Result<()> {
         s.coarse_pairs_tested, s.connected_pairs, s.fine_pairs, s.frames_with_markers, s.reference_anchored
     );
     if let Some(t) = &s.second {
-        let g = &t.frames;
-        say!(
-            "second video: flash video starts at {:.3} s{}; {} frames before the onset and {} after the flash video's end left out; {} used, {} kept; dropped {} blurry, {} unregistered, {} implausible; {} matched with flash frames",
-            t.sync_offset_s,
-            if t.onset.is_some() { " (flash onset)" } else { " (given)" },
-            t.before_onset,
-            t.after_end,
-            g.decoded,
-            g.kept,
-            g.blurry,
-            g.unregistered,
-            g.outside,
-            t.cross_pairs
-        );
+        say!("second video: {}", t.describe());
     }
     say!(
         "global solve: {} unknowns, residual rms {:.4} cm, median {:.4} cm",

@@ -413,6 +413,11 @@ pub fn print_run_summary(o: &RunOutcome) -> Result<()> {
         "frames: {} decoded, {} kept; dropped {} blurry, {} disconnected, {} unregistered, {} outside the markers",
         f["decoded"], f["kept"], f["blurry"], f["disconnected"], f["unregistered"], f["outside"]
     );
+    if let Ok(second) = serde_json::from_value::<svbrdf_align::SecondStreamSummary>(
+        align["summary"]["second"].clone(),
+    ) {
+        say!("second video: {}", second.describe());
+    }
     let s = &fit["summary"];
     say!(
         "clusters: {} initial, {} final; model {}",

@@ -277,6 +277,20 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
                 f["decoded"], f["kept"], f["blurry"], f["disconnected"], f["unregistered"], f["outside"]
             ),
         ));
+        let t = &a["summary"]["second"];
+        if t.is_object() {
+            let g = &t["frames"];
+            rows.push((
+                "second camera".into(),
+                format!(
+                    "synchronised at {} s of the second video{}; {} frames used, {} kept ({} blurry, {} unregistered, {} implausible); {} before the flash onset and {} after the flash video's end left out",
+                    num(&t["sync_offset_s"], 3),
+                    if t["onset"].is_object() { " (flash onset)" } else { " (given by hand)" },
+                    g["decoded"], g["kept"], g["blurry"], g["unregistered"], g["outside"],
+                    t["before_onset"], t["after_end"]
+                ),
+            ));
+        }
         rows.push((
             "alignment".into(),
             format!(
