@@ -284,13 +284,27 @@ pub fn light_intensity(
     if let Some(i) = capture.light_intensity {
         return Ok((i, IntensitySource::Capture));
     }
+    // Only the flash camera's observations set the scale: a second (two-camera)
+    // stream sees the surface from other angles and would move the albedo scale, so
+    // one- and two-camera fits of the same capture would not be comparable.
+    let stream_of: std::collections::HashMap<u32, u32> = capture
+        .frames
+        .iter()
+        .map(|f| (f.id, capture.sources.get(f.source).map_or(0, |s| s.stream)))
+        .collect();
+    let flash: Vec<bool> = obs
+        .frames
+        .iter()
+        .map(|f| stream_of.get(&f.id).is_none_or(|s| *s == 0))
+        .collect();
     let step = (obs.pixels() / 20_000).max(1);
     let mut medians: Vec<f64> = (0..obs.pixels())
         .step_by(step)
-        .filter(|&p| obs.count(p) > 0)
+        .filter(|&p| obs.range(p).any(|o| flash[usize::from(obs.frame[o])]))
         .map(|p| {
             let mut a: Vec<f64> = obs
                 .range(p)
+                .filter(|&o| flash[usize::from(obs.frame[o])])
                 .map(|o| {
                     let lv = obs.light_view(p, o);
                     let c = obs.color(o);
