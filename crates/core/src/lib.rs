@@ -25,6 +25,7 @@ pub mod fsutil;
 pub mod geometry;
 pub mod homography;
 pub mod image;
+pub mod import;
 pub mod maps;
 pub mod plane;
 pub mod progress;

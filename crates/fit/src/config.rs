@@ -99,6 +99,9 @@ pub struct FitConfig {
     pub refine_iterations: usize,
     /// Frames shown in the re-rendering strip.
     pub strip_frames: usize,
+    /// Fit a Lambertian material only (`rho_s = 0` everywhere): the baseline that
+    /// shows what the specular fit adds (`svbrdf eval --diffuse-only`).
+    pub diffuse_only: bool,
 }
 
 impl Default for FitConfig {
@@ -134,6 +137,7 @@ impl Default for FitConfig {
             refine_specular: false,
             refine_max_normal_change_deg: 3.0,
             strip_frames: 4,
+            diffuse_only: false,
         }
     }
 }

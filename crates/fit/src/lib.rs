@@ -18,6 +18,7 @@
 pub mod cluster;
 pub mod config;
 pub mod evaluate;
+pub mod holdout;
 pub mod observations;
 pub mod output;
 pub mod render;

@@ -81,6 +81,8 @@ pub struct Bounds {
     /// Enforce `rho_d + rho_s <= 1` per channel (off only while the light intensity
     /// is being normalised, when albedo units are not fixed yet).
     pub energy: bool,
+    /// Hold `rho_s = 0`: the diffuse-only baseline of held-out evaluation.
+    pub diffuse_only: bool,
 }
 
 impl Bounds {
@@ -92,6 +94,7 @@ impl Bounds {
             normal_lo: [-max_normal; 2],
             normal_hi: [max_normal; 2],
             energy: true,
+            diffuse_only: false,
         }
     }
 }
@@ -138,6 +141,9 @@ impl Problem<'_> {
         let b = &self.bounds;
         for v in x.iter_mut().take(6) {
             *v = if v.is_finite() { v.max(0.0) } else { 0.0 };
+        }
+        if b.diffuse_only {
+            x[3..6].fill(0.0);
         }
         for c in 0..3 {
             let s = x[c] + x[3 + c];
@@ -419,6 +425,7 @@ mod tests {
         normal_lo: [-0.785; 2],
         normal_hi: [0.785; 2],
         energy: true,
+        diffuse_only: false,
     };
 
     fn truth() -> BrdfParams {

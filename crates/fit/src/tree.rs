@@ -32,11 +32,14 @@ pub struct Context<'a> {
 impl Context<'_> {
     /// Bounds of eq. (11) from the settings.
     pub fn bounds(&self) -> Bounds {
-        Bounds::symmetric(
-            self.cfg.alpha_min,
-            self.cfg.alpha_max,
-            self.cfg.max_normal_deg.to_radians(),
-        )
+        Bounds {
+            diffuse_only: self.cfg.diffuse_only,
+            ..Bounds::symmetric(
+                self.cfg.alpha_min,
+                self.cfg.alpha_max,
+                self.cfg.max_normal_deg.to_radians(),
+            )
+        }
     }
 }
 
