@@ -23,6 +23,8 @@ pub struct FrameData {
     pub index: u64,
     /// Camera stream: 0 the flash video, 1 the second (no-flash) video.
     pub stream: u32,
+    /// File name inside the photo folder, for still photos.
+    pub file: Option<String>,
     /// Time on the flash camera's clock, seconds.
     pub time_s: f64,
     /// Full-resolution width.
@@ -120,6 +122,7 @@ fn process(
     Ok(FrameData {
         index,
         stream: 0,
+        file: None,
         time_s: index as f64 / fps.max(1e-9),
         width: img.width as u32,
         height: img.height as u32,
@@ -203,6 +206,64 @@ pub fn decode_frames(
         return Err(AlignError::Video(format!(
             "{}: no frames could be decoded",
             video.display()
+        )));
+    }
+    Ok(out)
+}
+
+/// Read every JPEG/PNG in `dir` (sorted by name; OpenCV applies EXIF orientation) and
+/// do the per-frame work on each. All photos must have one size, since they share one
+/// camera description.
+pub fn read_photos(
+    dir: &Path,
+    cfg: &AlignConfig,
+    dict: Dictionary,
+    progress: &dyn Progress,
+) -> Result<Vec<FrameData>, AlignError> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .map_err(|e| {
+            AlignError::Video(format!(
+                "{}: cannot read the photo folder ({e})",
+                dir.display()
+            ))
+        })?
+        .filter_map(|e| e.ok())
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .filter(|n| {
+            let l = n.to_ascii_lowercase();
+            l.ends_with(".jpg") || l.ends_with(".jpeg") || l.ends_with(".png")
+        })
+        .collect();
+    names.sort();
+    if names.len() < 2 {
+        return Err(AlignError::Video(format!(
+            "{}: {} photo(s) (JPEG or PNG) found, expected at least 2",
+            dir.display(),
+            names.len()
+        )));
+    }
+    progress.stage("photos: markers + features", names.len() as u64);
+    let out: Vec<Result<FrameData, AlignError>> = names
+        .par_iter()
+        .enumerate()
+        .map(|(k, name)| {
+            let img = svbrdf_cv::read_image(&dir.join(name))?;
+            let mut f = process(&img, k as u64, 1.0, cfg, dict)?;
+            f.file = Some(name.clone());
+            progress.advance(1);
+            Ok(f)
+        })
+        .collect();
+    progress.finish();
+    let out: Vec<FrameData> = out.into_iter().collect::<Result<_, _>>()?;
+    let (w, h) = (out[0].width, out[0].height);
+    if let Some(f) = out.iter().find(|f| (f.width, f.height) != (w, h)) {
+        return Err(AlignError::Video(format!(
+            "{}: {}x{} pixels, but {} is {w}x{h} (expected one size: the photos share one camera description)",
+            dir.join(f.file.as_deref().unwrap_or("?")).display(),
+            f.width,
+            f.height,
+            out[0].file.as_deref().unwrap_or("?")
         )));
     }
     Ok(out)

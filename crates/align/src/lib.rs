@@ -171,8 +171,10 @@ impl SecondStreamSummary {
 /// Inputs of [`align`].
 #[derive(Debug, Clone)]
 pub struct AlignInputs {
-    /// The flash video.
-    pub video: PathBuf,
+    /// The flash video (or `photos`).
+    pub video: Option<PathBuf>,
+    /// A folder of flash photos instead of a video: no time order, no blur pre-filter.
+    pub photos: Option<PathBuf>,
     /// The reference photo.
     pub reference: PathBuf,
     /// The second, no-flash video of a two-camera capture (paper 3.3).
@@ -233,7 +235,17 @@ pub fn align(
     timer.lap("reference");
 
     // Frames: decode, blur metric, markers, features.
-    let decoded = frames::decode_frames(&inputs.video, cfg, dict, progress)?;
+    let (decoded, ordered) = match (&inputs.video, &inputs.photos) {
+        (Some(v), None) => (frames::decode_frames(v, cfg, dict, progress)?, true),
+        (None, Some(d)) => (frames::read_photos(d, cfg, dict, progress)?, false),
+        _ => {
+            return Err(AlignError::invalid(
+                "frame input",
+                "a video and a photo folder (or neither)",
+                "exactly one of them",
+            ))
+        }
+    };
     timer.lap("decode + features");
     let ref_features = if cfg.match_reference {
         Some(matching::reference_features(&ref_img, &reference, cfg)?)
@@ -242,10 +254,17 @@ pub fn align(
     };
     timer.lap("reference features");
 
-    let (second, mut second_summary) = match &inputs.second_video {
-        None => (None, None),
-        Some(v) => {
-            let (frames, summary) = second_stream(v, &inputs.video, cfg, dict, progress)?;
+    let (second, mut second_summary) = match (&inputs.second_video, &inputs.video) {
+        (None, _) => (None, None),
+        (Some(_), None) => {
+            return Err(AlignError::invalid(
+                "second video",
+                "with still photos",
+                "a flash video to synchronise with",
+            ))
+        }
+        (Some(v), Some(flash)) => {
+            let (frames, summary) = second_stream(v, flash, cfg, dict, progress)?;
             timer.lap("second video: sync + features");
             (Some(frames), Some(summary))
         }
@@ -253,6 +272,7 @@ pub fn align(
 
     let result = matching::register(
         decoded,
+        ordered,
         second,
         &reference,
         ref_features.as_ref(),

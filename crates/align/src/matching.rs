@@ -539,6 +539,7 @@ pub fn interpolate_track(track: &[(f64, Vec3)], t: f64) -> Option<Vec3> {
 /// Coarse to fine registration of the decoded frames.
 pub fn register(
     decoded: Vec<FrameData>,
+    ordered: bool,
     second: Option<SecondFrames>,
     rf: &ReferenceFrame,
     ref_features: Option<&ReferenceFeatures>,
@@ -550,11 +551,16 @@ pub fn register(
         decoded: decoded.len(),
         ..DropCounts::default()
     };
-    // Blur selection.
+    // Blur selection (video frames only: a still photo was taken on purpose, and a
+    // handful of them gives no statistics).
     let metrics: Vec<f64> = decoded.iter().map(|f| f.blur).collect();
-    let blurry: BTreeSet<usize> = blurry_frames(&metrics, cfg.blur_sigmas)
-        .into_iter()
-        .collect();
+    let blurry: BTreeSet<usize> = if ordered {
+        blurry_frames(&metrics, cfg.blur_sigmas)
+            .into_iter()
+            .collect()
+    } else {
+        BTreeSet::new()
+    };
     drops.blurry = blurry.len();
     let frames: Vec<FrameData> = decoded
         .into_iter()
@@ -572,8 +578,19 @@ pub fn register(
     let (width, height) = (frames[0].width, frames[0].height);
     let intrinsics = Intrinsics::from_fov(width, height, cfg.camera.fov_deg)?;
 
-    // Coarse alignment and the connectivity map.
-    let (connectivity, coarse_tested) = coarse(&frames, cfg, progress)?;
+    // Coarse alignment and the connectivity map. Photos have no time order: every
+    // pair is tested.
+    let all_pairs_cfg;
+    let coarse_cfg = if ordered {
+        cfg
+    } else {
+        all_pairs_cfg = AlignConfig {
+            all_pairs: true,
+            ..cfg.clone()
+        };
+        &all_pairs_cfg
+    };
+    let (connectivity, coarse_tested) = coarse(&frames, coarse_cfg, progress)?;
     let mut verified_pairs: Vec<(u64, u64, usize)> = connectivity
         .counts
         .iter()

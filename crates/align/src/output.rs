@@ -76,11 +76,16 @@ pub fn write(
         .px_per_cm
         .unwrap_or_else(|| (0.5 * reg.intrinsics.fx / median_h).max(1.0).round());
 
-    let video = std::path::absolute(&inputs.video).unwrap_or_else(|_| inputs.video.clone());
+    let (kind, input) = match (&inputs.video, &inputs.photos) {
+        (Some(v), _) => (SourceKind::Video, v.clone()),
+        (None, Some(d)) => (SourceKind::Images, d.clone()),
+        (None, None) => (SourceKind::Video, std::path::PathBuf::new()),
+    };
+    let input = std::path::absolute(&input).unwrap_or(input);
     let mut cap = RegisteredCapture::new("svbrdf align", region, px_per_cm);
     cap.sources.push(Source {
-        kind: SourceKind::Video,
-        path: video.to_string_lossy().into_owned(),
+        kind,
+        path: input.to_string_lossy().into_owned(),
         encoding: Encoding::Srgb,
         stream: 0,
     });
@@ -104,9 +109,9 @@ pub fn write(
         cap.frames.push(Frame {
             id: k as u32,
             source: f.stream as usize,
-            frame_index: Some(f.index),
-            image: None,
-            time_s: Some(f.time_s),
+            frame_index: f.file.is_none().then_some(f.index),
+            image: f.file.clone(),
+            time_s: f.file.is_none().then_some(f.time_s),
             width: f.width,
             height: f.height,
             mapping: FrameMapping::Homographies {
@@ -255,7 +260,8 @@ pub fn write(
     #[derive(serde::Serialize)]
     struct Record<'a> {
         settings: &'a AlignConfig,
-        video: String,
+        video: Option<String>,
+        photos: Option<String>,
         second_video: Option<String>,
         reference: String,
         reference_tilt_deg: f64,
@@ -266,7 +272,8 @@ pub fn write(
         &dir.join(SUMMARY),
         &Record {
             settings: cfg,
-            video: inputs.video.display().to_string(),
+            video: inputs.video.as_ref().map(|v| v.display().to_string()),
+            photos: inputs.photos.as_ref().map(|v| v.display().to_string()),
             second_video: inputs
                 .second_video
                 .as_ref()

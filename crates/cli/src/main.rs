@@ -63,6 +63,12 @@ enum Command {
     Markers(run_cmd::MarkersArgs),
     /// Measure speed and accuracy and print one JSON object per line.
     Bench(bench::BenchArgs),
+    /// Convert a registered image set from another tool (MaterialGAN layout) into a
+    /// registered capture for `fit`, `run --capture` and `eval`.
+    Import(eval_cmd::ImportArgs),
+    /// Fit without some frames and compare renderings of them with the photos (RMSE
+    /// and SSIM, linear and sRGB; strips; report).
+    Eval(eval_cmd::EvalArgs),
 }
 
 #[derive(Args)]
@@ -112,8 +118,13 @@ struct SynthArgs {
 #[command(allow_negative_numbers = true)]
 struct AlignArgs {
     /// The flash video (any container and codec FFmpeg decodes; rotation metadata is applied).
-    #[arg(long)]
-    video: PathBuf,
+    #[arg(long, required_unless_present = "photos")]
+    video: Option<PathBuf>,
+    /// Instead of a video: a folder of flash photos (JPEG/PNG, EXIF orientation
+    /// applied). Photos have no time order (overlaps are found by matching every pair)
+    /// and no blur pre-filter.
+    #[arg(long, conflicts_with_all = ["video", "second_video"])]
+    photos: Option<PathBuf>,
     /// The reference photo showing all four markers (JPEG/PNG).
     #[arg(long)]
     reference: PathBuf,
@@ -254,6 +265,7 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     let progress = progress::Bars::new();
     let inputs = svbrdf_align::AlignInputs {
         video: a.video.clone(),
+        photos: a.photos.clone(),
         reference: a.reference.clone(),
         second_video: a.second.second_video.clone(),
     };
@@ -410,6 +422,7 @@ fn print_summary(s: &svbrdf_synth::SynthSummary) {
 }
 
 mod alloc;
+mod eval_cmd;
 mod run_cmd;
 mod view;
 
@@ -442,6 +455,8 @@ fn main() -> ExitCode {
         Command::View(a) => view::run_view(&a),
         Command::Markers(a) => run_cmd::run_markers(&a),
         Command::Bench(a) => bench::run(&a),
+        Command::Import(a) => eval_cmd::run_import(&a).map(|_| ()),
+        Command::Eval(a) => eval_cmd::run_eval(&a).map(|_| ()),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -89,11 +89,15 @@ pub fn run_export(a: &ExportArgs) -> Result<svbrdf_export::ExportSummary> {
 #[command(allow_negative_numbers = true)]
 pub struct RunArgs {
     /// The flash video (any container and codec FFmpeg decodes).
-    #[arg(long)]
-    pub video: PathBuf,
+    #[arg(long, required_unless_present = "capture", requires = "reference")]
+    pub video: Option<PathBuf>,
     /// The reference photo showing all four markers (JPEG/PNG).
-    #[arg(long)]
-    pub reference: PathBuf,
+    #[arg(long, required_unless_present = "capture", requires = "video")]
+    pub reference: Option<PathBuf>,
+    /// Instead of --video and --reference: a registered capture made elsewhere
+    /// (`svbrdf import`, `svbrdf align --photos`, another tool); alignment is skipped.
+    #[arg(long, conflicts_with_all = ["video", "reference", "second_video"])]
+    pub capture: Option<PathBuf>,
     /// Phone description (JSON; see `svbrdf align --help`). Default: the paper's phone.
     #[arg(long)]
     pub camera: Option<PathBuf>,
@@ -145,8 +149,9 @@ impl RunArgs {
     /// `bench --preset` run.
     pub fn for_synthetic_capture(capture: &Path, out: PathBuf, px_per_cm: f64) -> Self {
         Self {
-            video: capture.join("flash.mp4"),
-            reference: capture.join("reference.jpg"),
+            video: Some(capture.join("flash.mp4")),
+            reference: Some(capture.join("reference.jpg")),
+            capture: None,
             camera: Some(capture.join("camera.json")),
             out,
             region: None,
@@ -226,7 +231,8 @@ fn write_record(path: &Path, record: &Value) -> Result<()> {
 pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
     let align_args = crate::AlignArgs {
         video: a.video.clone(),
-        reference: a.reference.clone(),
+        reference: a.reference.clone().unwrap_or_default(),
+        photos: None,
         camera: a.camera.clone(),
         out: a.out.join(ALIGNED),
         region: a.region.clone(),
@@ -241,7 +247,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         overwrite: true,
     };
     let fit_args = crate::fit_cmd::FitArgs {
-        capture: a.out.join(ALIGNED),
+        capture: a.capture.clone().unwrap_or_else(|| a.out.join(ALIGNED)),
         out: a.out.join(MAPS),
         config: a.fit_config.clone(),
         model: a.model.clone(),
@@ -264,9 +270,13 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
     let export_cfg = export_config(&export_args);
     export_cfg.validate()?;
 
+    let identity = |p: &Option<PathBuf>| -> Result<Value> {
+        p.as_ref().map_or(Ok(Value::Null), |p| file_identity(p))
+    };
     let inputs = json!({
-        "video": file_identity(&a.video)?,
-        "reference": file_identity(&a.reference)?,
+        "video": identity(&a.video)?,
+        "reference": identity(&a.reference)?,
+        "capture": identity(&a.capture.as_ref().map(|c| if c.is_dir() { c.join(svbrdf_core::capture::CAPTURE_FILE) } else { c.clone() }))?,
         "camera": match &a.camera { Some(c) => file_identity(c)?, None => Value::Null },
         "second_video": match &a.second.second_video { Some(v) => file_identity(v)?, None => Value::Null },
         "second_camera": match &a.second.second_camera { Some(c) => file_identity(c)?, None => Value::Null },
@@ -289,12 +299,13 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
                 a.out.display()
             ),
             Some(p) if p["inputs"]["video"]["head_fnv1a"] != inputs["video"]["head_fnv1a"]
-                || p["inputs"]["video"]["bytes"] != inputs["video"]["bytes"] =>
+                || p["inputs"]["video"]["bytes"] != inputs["video"]["bytes"]
+                || p["inputs"]["capture"]["head_fnv1a"] != inputs["capture"]["head_fnv1a"] =>
             {
                 anyhow::bail!(
-                    "invalid output folder {} (it holds a run of another video, {}; expected a new folder, or pass --overwrite)",
+                    "invalid output folder {} (it holds a run of another input, {}; expected a new folder, or pass --overwrite)",
                     a.out.display(),
-                    p["inputs"]["video"]["path"]
+                    if p["inputs"]["video"].is_null() { &p["inputs"]["capture"]["path"] } else { &p["inputs"]["video"]["path"] }
                 )
             }
             _ => {}
@@ -351,6 +362,13 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         ),
     ];
     for (name, dir, stage) in &stages {
+        if *name == "align" && a.capture.is_some() {
+            say!(
+                "== align: skipped (registered capture given: {})",
+                fit_args.capture.display()
+            );
+            continue;
+        }
         let fp = fingerprint(&json!([prev_fp, record["settings"][*name]]));
         let reusable = !a.force
             && dir.exists()
@@ -405,7 +423,8 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
 
 /// The closing summary of a run.
 pub fn print_run_summary(o: &RunOutcome) -> Result<()> {
-    let align: Value = svbrdf_core::fsutil::read_json(&o.out.join(ALIGNED).join("align.json"))?;
+    let align: Value = svbrdf_core::fsutil::read_json(&o.out.join(ALIGNED).join("align.json"))
+        .unwrap_or(Value::Null);
     let fit: Value = svbrdf_core::fsutil::read_json(&o.out.join(MAPS).join("fit.json"))?;
     let f = &align["summary"]["frames"];
     say!("== summary");

@@ -98,12 +98,21 @@ pub fn decode_frames<E: From<CvError>>(
                 for k in frames {
                     let name = capture.frames[k].image.clone().unwrap_or_default();
                     let file = path.join(&name);
-                    let img =
-                        read_image_linear(&file, source.encoding).map_err(|e| CvError::File {
-                            path: file.clone(),
-                            message: e.to_string(),
-                        })?;
-                    sink(k, FrameImage::Linear(img))?;
+                    let exr = file
+                        .extension()
+                        .is_some_and(|e| e.eq_ignore_ascii_case("exr"));
+                    let img = if exr || source.encoding != Encoding::Srgb {
+                        FrameImage::Linear(read_image_linear(&file, source.encoding).map_err(
+                            |e| CvError::File {
+                                path: file.clone(),
+                                message: e.to_string(),
+                            },
+                        )?)
+                    } else {
+                        // OpenCV applies the EXIF orientation, as alignment saw the photo.
+                        FrameImage::Srgb8(crate::read_image(&file)?)
+                    };
+                    sink(k, img)?;
                 }
             }
         }

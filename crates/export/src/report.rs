@@ -502,6 +502,63 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
         page.end();
     }
 
+    // Held-out evaluation (`svbrdf eval`).
+    if let Some(e) = read_json(&dir.join("eval/eval.json")) {
+        page.section(
+            "eval",
+            "Held-out photographs",
+            "Fitted without these frames, then rendered from each one's own camera and light and compared with the photo on the plane: RMSE and SSIM of linear values and of sRGB values. Strips: photo | rendering | 4 x |difference|.",
+        );
+        let mut rows = Vec::new();
+        for im in e["images"].as_array().into_iter().flatten() {
+            rows.push((
+                im["name"].as_str().unwrap_or("?").to_string(),
+                format!(
+                    "RMSE linear {} ({}% of the mean), sRGB {}; SSIM linear {}, sRGB {}",
+                    num(&im["rmse_linear"], 4),
+                    num(
+                        &(im["relative_rmse_linear"].as_f64().unwrap_or(f64::NAN) * 100.0).into(),
+                        1
+                    ),
+                    num(&im["rmse_srgb"], 4),
+                    num(&im["ssim_linear"], 3),
+                    num(&im["ssim_srgb"], 3)
+                ),
+            ));
+        }
+        rows.push((
+            "fitted".into(),
+            format!(
+                "{} frames, model {}{}",
+                e["fitted_frames"],
+                e["model"].as_str().unwrap_or("?"),
+                if e["diffuse_only"].as_bool() == Some(true) {
+                    ", diffuse only (rho_s = 0)"
+                } else {
+                    ""
+                }
+            ),
+        ));
+        page.table(&rows);
+        let pics: Vec<(PathBuf, String)> = e["images"]
+            .as_array()
+            .into_iter()
+            .flatten()
+            .filter_map(|im| {
+                let strip = dir.join("eval").join(im["strip"].as_str()?);
+                Some((
+                    strip,
+                    format!(
+                        "{}: photo | rendering | 4 x |difference|",
+                        im["name"].as_str().unwrap_or("?")
+                    ),
+                ))
+            })
+            .collect();
+        page.figures(&pics, true)?;
+        page.end();
+    }
+
     // Files.
     page.section("files", "Files", "");
     let mut rows = Vec::new();
