@@ -271,9 +271,11 @@ pub fn align(
     };
 
     let result = matching::register(
-        decoded,
-        ordered,
-        second,
+        matching::Streams {
+            frames: decoded,
+            ordered,
+            second,
+        },
         &reference,
         ref_features.as_ref(),
         cfg,

@@ -70,6 +70,16 @@ pub struct SecondFrames {
     pub intrinsics: Intrinsics,
 }
 
+/// The decoded frames to register.
+pub struct Streams {
+    /// The flash video's frames (or the still photos).
+    pub frames: Vec<FrameData>,
+    /// `true` for video frames (time order, blur pre-filter); `false` for photos.
+    pub ordered: bool,
+    /// The second stream of a two-camera capture.
+    pub second: Option<SecondFrames>,
+}
+
 /// Result of registration, ready to be written.
 pub struct Registration {
     /// Frames kept, with their data: the flash stream's, then the second stream's.
@@ -538,15 +548,18 @@ pub fn interpolate_track(track: &[(f64, Vec3)], t: f64) -> Option<Vec3> {
 
 /// Coarse to fine registration of the decoded frames.
 pub fn register(
-    decoded: Vec<FrameData>,
-    ordered: bool,
-    second: Option<SecondFrames>,
+    streams: Streams,
     rf: &ReferenceFrame,
     ref_features: Option<&ReferenceFeatures>,
     cfg: &AlignConfig,
     progress: &dyn Progress,
     lap: &mut dyn FnMut(&str),
 ) -> Result<Registration, AlignError> {
+    let Streams {
+        frames: decoded,
+        ordered,
+        second,
+    } = streams;
     let mut drops = DropCounts {
         decoded: decoded.len(),
         ..DropCounts::default()
