@@ -61,6 +61,20 @@ pub struct BenchArgs {
     /// again with the flash video alone (run-one-camera/), and report both.
     #[arg(long, requires = "preset")]
     second_video: bool,
+    /// Held-out evaluation of a registered capture (e.g. `svbrdf import` of the real
+    /// cards-blue photos): leave-k-out over every combination, with the diffuse-only
+    /// baseline, into --eval-out; one JSON line with both means.
+    #[arg(long)]
+    eval_capture: Option<std::path::PathBuf>,
+    /// Frames held out per fit for --eval-capture.
+    #[arg(long, default_value_t = 2, requires = "eval_capture")]
+    eval_leave_out: usize,
+    /// Map resolution for --eval-capture, pixels per cm.
+    #[arg(long, default_value_t = 40.0, requires = "eval_capture")]
+    eval_px_per_cm: f64,
+    /// Working folder for --eval-capture (finished sets are reused).
+    #[arg(long, default_value = "bench-eval", requires = "eval_capture")]
+    eval_out: std::path::PathBuf,
     /// Samples per BRDF measurement.
     #[arg(long, default_value_t = 4_000_000)]
     samples: usize,
@@ -626,6 +640,41 @@ pub fn run(a: &BenchArgs) -> Result<()> {
             .clone()
             .unwrap_or_else(|| std::path::PathBuf::from(format!("bench-{p}")));
         println!("{}", pipeline(p, &dir, a.second_video)?);
+        if a.no_brdf {
+            return Ok(());
+        }
+    }
+    if let Some(c) = &a.eval_capture {
+        let t = Instant::now();
+        let args = crate::eval_cmd::EvalArgs {
+            capture: c.clone(),
+            holdout: None,
+            leave_out: Some(a.eval_leave_out),
+            out: a.eval_out.clone(),
+            diffuse_only: false,
+            baseline: true,
+            config: None,
+            model: "ward".into(),
+            px_per_cm: Some(a.eval_px_per_cm),
+            no_refine: false,
+            overwrite: false,
+        };
+        let s = crate::eval_cmd::run_eval(&args)?;
+        println!(
+            "{}",
+            json!({
+                "bench": "holdout_eval",
+                "capture": c.display().to_string(),
+                "leave_out": a.eval_leave_out,
+                "px_per_cm": a.eval_px_per_cm,
+                "sets": s["sets"],
+                "full": s["full"]["mean"],
+                "diffuse_only": s["diffuse_only"]["mean"],
+                "fit_seconds_mean": s["full"]["fit_seconds_mean"],
+                "seconds": t.elapsed().as_secs_f64(),
+                "machine": machine(),
+            })
+        );
         if a.no_brdf {
             return Ok(());
         }

@@ -3,6 +3,7 @@
 
 mod align;
 mod bad_input;
+mod eval;
 mod fit;
 mod run;
 mod synth;

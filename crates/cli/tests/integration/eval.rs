@@ -1,0 +1,145 @@
+//! Importing registered image sets and held-out evaluation, on the real cards-blue
+//! photographs in `../shared/data/real/` (absent in a user's clone: the tests then
+//! skip and say why; CI has the data and `SVBRDF_REQUIRE_TOOLS=1` makes them required).
+
+use std::path::PathBuf;
+
+use crate::util::{repo_root, skip_without, stderr, svbrdf, temp_dir};
+
+fn cards_blue() -> Option<PathBuf> {
+    let p = repo_root().join("../shared/data/real/materialgan-cards-blue");
+    let present = p.join("camera_pos.txt").is_file();
+    if skip_without(
+        "../shared/data/real/materialgan-cards-blue (real photos for evaluation)",
+        present,
+        "the project's shared data folder, present in CI; never copied into the project",
+    ) {
+        return None;
+    }
+    Some(p)
+}
+
+fn json(path: PathBuf) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(&path).unwrap_or_else(|e| {
+        panic!("{}: {e}", path.display());
+    }))
+    .unwrap()
+}
+
+/// The test: eval on cards-blue at reduced resolution, holding out two photos,
+/// reports relighting errors, writes strips and a report, and the specular fit beats
+/// the diffuse-only baseline on the held-out photos.
+#[test]
+fn eval_on_real_photos_beats_the_diffuse_only_baseline() {
+    let Some(data) = cards_blue() else { return };
+    let cap = temp_dir().join("cards");
+    let o = svbrdf(&[
+        "import",
+        "--materialgan",
+        data.to_str().unwrap(),
+        "--out",
+        cap.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let c = json(cap.join("capture.json"));
+    assert_eq!(c["frames"].as_array().map(Vec::len), Some(9));
+    assert!(c["light_intensity"].is_null());
+
+    let out = temp_dir().join("eval");
+    let o = svbrdf(&[
+        "eval",
+        "--capture",
+        cap.to_str().unwrap(),
+        "--holdout",
+        "7,8",
+        "--px-per-cm",
+        "25",
+        "--baseline",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let full = json(out.join("eval/eval.json"));
+    let diffuse = json(out.join("diffuse-only/eval/eval.json"));
+    assert_eq!(full["fitted_frames"], 7);
+    assert_eq!(diffuse["diffuse_only"], true);
+    for r in [&full, &diffuse] {
+        let images = r["images"].as_array().unwrap();
+        assert_eq!(images.len(), 2);
+        for im in images {
+            for k in ["rmse_linear", "rmse_srgb", "ssim_linear", "ssim_srgb"] {
+                let v = im[k].as_f64().unwrap();
+                assert!(v.is_finite() && v > -1.0 && v < 2.0, "{k} = {v}");
+            }
+            assert!(im["pixels"].as_u64().unwrap() > 10_000);
+        }
+    }
+    for id in ["007", "008"] {
+        assert!(out.join(format!("eval/strip_{id}.png")).is_file());
+    }
+    let (f, d) = (&full["mean"], &diffuse["mean"]);
+    assert!(
+        f["rmse_srgb"].as_f64() < d["rmse_srgb"].as_f64(),
+        "specular fit {f} vs diffuse only {d}"
+    );
+    assert!(
+        f["ssim_srgb"].as_f64() > d["ssim_srgb"].as_f64(),
+        "specular fit {f} vs diffuse only {d}"
+    );
+    let report = std::fs::read_to_string(out.join("report.html")).unwrap();
+    assert!(report.contains("Held-out photographs") && report.contains("07.png"));
+
+    // `run --capture` takes the imported capture through fit, export and report.
+    let run = temp_dir().join("run");
+    let o = svbrdf(&[
+        "run",
+        "--capture",
+        cap.to_str().unwrap(),
+        "--px-per-cm",
+        "15",
+        "--out",
+        run.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(run.join("export/gltf/material.gltf").is_file());
+    assert!(run.join("report.html").is_file());
+}
+
+#[test]
+fn eval_and_import_name_bad_input() {
+    let Some(data) = cards_blue() else { return };
+    let cap = temp_dir().join("cards");
+    let o = svbrdf(&[
+        "import",
+        "--materialgan",
+        data.to_str().unwrap(),
+        "--out",
+        cap.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = svbrdf(&[
+        "eval",
+        "--capture",
+        cap.to_str().unwrap(),
+        "--holdout",
+        "3,12",
+        "--out",
+        temp_dir().join("e").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(
+        e.contains("held-out frame 12") && e.contains("0, 1, 2, 3, 4, 5, 6, 7, 8"),
+        "{e}"
+    );
+    assert_eq!(e.trim().lines().count(), 1, "{e}");
+    let o = svbrdf(&[
+        "import",
+        "--materialgan",
+        temp_dir().to_str().unwrap(),
+        "--out",
+        temp_dir().join("x").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("no numbered images"), "{}", stderr(&o));
+}
