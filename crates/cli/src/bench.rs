@@ -179,17 +179,30 @@ pub fn align_accuracy(
     let mut light_errs = [Vec::new(), Vec::new()];
     let mut per_frame: Vec<serde_json::Value> = Vec::new();
     for f in &cap.frames {
-        let Some(idx) = f.frame_index else { continue };
         let s = cap
             .sources
             .get(f.source)
             .map_or(0, |s| s.stream as usize)
             .min(1);
-        let Some(gt) = truth
-            .streams
-            .get(s)
-            .and_then(|st| st.frames.get(idx as usize))
-        else {
+        // Video frames by frame number; the simulator's photos by file name.
+        let (idx, gt) = match (f.frame_index, &f.image) {
+            (Some(i), _) => (
+                i,
+                truth
+                    .streams
+                    .get(s)
+                    .and_then(|st| st.frames.get(i as usize)),
+            ),
+            (None, Some(name)) => {
+                let k = truth
+                    .photos
+                    .iter()
+                    .position(|p| format!("photo_{:02}.jpg", p.index) == *name);
+                (k.unwrap_or(0) as u64, k.and_then(|k| truth.photos.get(k)))
+            }
+            _ => continue,
+        };
+        let Some(gt) = gt else {
             continue;
         };
         let (errs, cam_errs, light_errs) = (&mut errs[s], &mut cam_errs[s], &mut light_errs[s]);

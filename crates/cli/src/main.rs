@@ -109,6 +109,14 @@ struct SynthArgs {
     /// Also render a second, no-flash camera at an oblique angle (paper section 3.3).
     #[arg(long)]
     second_camera: bool,
+    /// Marker dictionary, as OpenCV names it (default DICT_6X6_250; e.g.
+    /// DICT_APRILTAG_36h11).
+    #[arg(long)]
+    marker_dictionary: Option<String>,
+    /// Also render this many flash photos (2-200) with all four markers in view, into
+    /// photos/ with their camera description photos_camera.json (for `align --photos`).
+    #[arg(long)]
+    photos: Option<u32>,
     /// Replace the output folder if it exists.
     #[arg(long)]
     overwrite: bool,
@@ -328,6 +336,12 @@ fn synth_config(a: &SynthArgs) -> Result<SynthConfig> {
     }
     if a.second_camera {
         c.second_camera = Some(c.default_second_camera());
+    }
+    if let Some(n) = a.photos {
+        c.photos = Some(c.default_photos(n));
+    }
+    if let Some(d) = &a.marker_dictionary {
+        c.markers.dictionary = d.clone();
     }
     c.validate()?;
     Ok(c)

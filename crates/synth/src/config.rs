@@ -135,6 +135,25 @@ pub struct SecondCameraSpec {
     pub readout_s: f64,
 }
 
+/// An optional set of flash photos (still images instead of a video, issue 7).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct PhotoSpec {
+    /// Number of photos, >= 2.
+    pub count: u32,
+    /// Photo width, pixels.
+    pub width: u32,
+    /// Photo height, pixels.
+    pub height: u32,
+    /// Field of view across the longer side, degrees.
+    pub fov_deg: f64,
+    /// Closest and farthest camera height, cm.
+    pub distance_cm: [f64; 2],
+    /// Largest tilt away from looking straight down, degrees.
+    pub tilt_deg: f64,
+    /// JPEG quality, 1-100.
+    pub jpeg_quality: i32,
+}
+
 /// Everything `svbrdf synth` needs.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct SynthConfig {
@@ -164,6 +183,9 @@ pub struct SynthConfig {
     pub frame_step: u32,
     /// Optional second camera.
     pub second_camera: Option<SecondCameraSpec>,
+    /// Optional flash photos (`photos/`), each with all four markers in view.
+    #[serde(default)]
+    pub photos: Option<PhotoSpec>,
     /// Held-out light positions, cm (never visited by the flash).
     pub holdout_lights_cm: Vec<[f64; 3]>,
     /// Held-out overhead camera position, cm.
@@ -237,6 +259,7 @@ impl SynthConfig {
             light: LightSpec::default(),
             frame_step: 5,
             second_camera: None,
+            photos: None,
             holdout_lights_cm: default_holdout_lights(),
             holdout_camera_cm: [0.0, 0.0, 30.0],
         }
@@ -301,6 +324,21 @@ impl SynthConfig {
             distance_cm: 4.5 * reach,
             lead_s: 0.413,
             readout_s: 0.02,
+        }
+    }
+
+    /// A set of `count` flash photos suited to this preset: the reference photo's
+    /// camera, from 75-95% of its distance, tilted up to 12 degrees.
+    pub fn default_photos(&self, count: u32) -> PhotoSpec {
+        let r = &self.reference;
+        PhotoSpec {
+            count,
+            width: r.width,
+            height: r.height,
+            fov_deg: r.fov_deg,
+            distance_cm: [0.75 * r.distance_cm, 0.95 * r.distance_cm],
+            tilt_deg: 12.0,
+            jpeg_quality: r.jpeg_quality,
         }
     }
 
@@ -452,6 +490,25 @@ impl SynthConfig {
         }
         if self.frame_step == 0 {
             return Err(SynthError::invalid("frame step", 0, "at least 1"));
+        }
+        if let Some(p) = &self.photos {
+            if p.count < 2 || p.count > 200 {
+                return Err(SynthError::invalid(
+                    "photo count",
+                    p.count,
+                    "2 to 200 photos",
+                ));
+            }
+            size("photo size", p.width, p.height)?;
+            fov("photo field of view", p.fov_deg)?;
+            pos("photo distance", p.distance_cm[0], "cm")?;
+            if !(p.distance_cm[1] >= p.distance_cm[0]) {
+                return Err(SynthError::invalid(
+                    "photo distance range",
+                    format!("{:?}", p.distance_cm),
+                    "cm, [closest, farthest] with closest <= farthest",
+                ));
+            }
         }
         if let Some(c) = &self.second_camera {
             size("second camera size", c.width, c.height)?;

@@ -13,6 +13,8 @@
 //! OUT/second.mp4               second camera (optional)
 //! OUT/camera.json              the phone description that `align` takes
 //! OUT/second_camera.json       the second phone's description (optional)
+//! OUT/photos/photo_NN.jpg      flash photos with all markers in view (optional)
+//! OUT/photos_camera.json       their camera description (optional)
 //! OUT/ground_truth/truth.json  cameras, lights, markers, settings
 //! OUT/ground_truth/maps/*.exr  linear maps (+ PNG previews)
 //! OUT/ground_truth/holdout/*   held-out relighting (linear EXR + sRGB PNG)
@@ -341,6 +343,17 @@ pub fn synthesize(
         files.push("second.mp4".into());
     }
 
+    // Optional flash photos.
+    let photos = match &cfg.photos {
+        Some(ps) => {
+            let t = render_photos(cfg, ps, &scene, lighting, &dir, progress)?;
+            files.push("photos/".into());
+            files.push("photos_camera.json".into());
+            t
+        }
+        None => Vec::new(),
+    };
+
     // Held-out relighting, rectified to the map grid.
     let holdout = render_holdout(cfg, &scene, region, &gt_dir.join("holdout"), progress)?;
     files.push("ground_truth/holdout/".into());
@@ -394,6 +407,7 @@ pub fn synthesize(
         streams,
         maps,
         holdout,
+        photos,
     };
     write_json(&gt_dir.join("truth.json"), &truth)?;
     files.push("ground_truth/truth.json".into());
@@ -519,6 +533,106 @@ fn render_second_camera(
         flash_onset_frame: onset,
         frames,
     })
+}
+
+/// Flash photos from random positions above the region, each with all four markers in
+/// view, as JPEGs in `photos/`, and their camera description.
+fn render_photos(
+    cfg: &SynthConfig,
+    ps: &config::PhotoSpec,
+    scene: &Scene,
+    lighting: Lighting,
+    dir: &Path,
+    progress: &dyn Progress,
+) -> Result<Vec<FrameTruth>, SynthError> {
+    let out = dir.join("photos");
+    std::fs::create_dir_all(&out).map_err(|e| CoreError::io(&out, e))?;
+    let intr = Intrinsics::from_fov(ps.width, ps.height, ps.fov_deg)?;
+    let flash_offset = Vec3::from(cfg.light.flash_offset_cm);
+    let mut rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0x9407);
+    let reach = 0.25 * cfg.region_cm[0].min(cfg.region_cm[1]);
+    let mut truth = Vec::with_capacity(ps.count as usize);
+    progress.stage("flash photos", u64::from(ps.count));
+    for k in 0..ps.count {
+        // Draw until the four markers are inside the photo.
+        let mut found = None;
+        for _ in 0..200 {
+            let h = rng.random_range(ps.distance_cm[0]..=ps.distance_cm[1]);
+            let c = Vec3::new(
+                rng.random_range(-reach..=reach),
+                rng.random_range(-reach..=reach),
+                h,
+            );
+            let tilt = ps.tilt_deg.to_radians();
+            let target = Vec3::new(
+                c.x + h * rng.random_range(-tilt..=tilt).tan(),
+                c.y + h * rng.random_range(-tilt..=tilt).tan(),
+                0.0,
+            );
+            let cam = Camera {
+                intrinsics: intr,
+                distortion: RadialDistortion::default(),
+                pose: Pose::look_at(c, target, Vec3::y())?,
+            };
+            if visible_markers(&cam, scene).len() == scene.markers.len() {
+                found = Some(cam);
+                break;
+            }
+        }
+        let cam = found.ok_or_else(|| {
+            SynthError::invalid(
+                "photo distance",
+                format!("{:?} cm", ps.distance_cm),
+                "a distance at which all four markers fit in the photo",
+            )
+        })?;
+        let light = cam.pose.camera_to_world(flash_offset);
+        let lin = render_linear(
+            scene,
+            &[Exposure {
+                camera: cam,
+                light: Some(light),
+                first_lit_row: 0,
+            }],
+            lighting,
+            2,
+        );
+        let img = expose(
+            &lin,
+            cfg.light.shot_noise,
+            cfg.light.read_noise,
+            cfg.seed ^ 0x9407,
+            u64::from(k),
+        );
+        svbrdf_cv::write_jpeg(
+            &out.join(format!("photo_{k:02}.jpg")),
+            &img,
+            ps.jpeg_quality,
+        )?;
+        truth.push(FrameTruth {
+            index: u64::from(k),
+            time_s: 0.0,
+            camera: cam_truth(&cam),
+            light_position: Some(light.into()),
+            first_lit_row: None,
+            motion_blur: false,
+            markers_visible: visible_markers(&cam, scene),
+        });
+        progress.advance(1);
+    }
+    progress.finish();
+    write_json(
+        &dir.join("photos_camera.json"),
+        &CameraDescription {
+            fov_deg: ps.fov_deg,
+            flash_offset_cm: cfg.light.flash_offset_cm,
+            marker_size_cm: cfg.markers.size_cm,
+            marker_dictionary: cfg.markers.dictionary.clone(),
+            frame_step: 1,
+            readout_s: 0.0,
+        },
+    )?;
+    Ok(truth)
 }
 
 fn write_truth_maps(

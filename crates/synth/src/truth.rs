@@ -36,6 +36,9 @@ pub struct GroundTruth {
     pub maps: MapFiles,
     /// Held-out relighting images.
     pub holdout: Vec<HoldoutTruth>,
+    /// Flash photos (`photos/photo_NN.jpg`), if rendered; `index` is NN, `time_s` 0.
+    #[serde(default)]
+    pub photos: Vec<FrameTruth>,
 }
 
 /// One marker.

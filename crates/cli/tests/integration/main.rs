@@ -5,6 +5,7 @@ mod align;
 mod bad_input;
 mod eval;
 mod fit;
+mod photos;
 mod run;
 mod synth;
 mod two_camera;

@@ -1,0 +1,133 @@
+//! Still-photo captures end to end on the simulator: flash photos with AprilTag 36h11
+//! markers through `align --photos`, `fit` and `eval`, checked against the truth.
+
+use std::path::{Path, PathBuf};
+use std::sync::OnceLock;
+
+use crate::util::{stderr, svbrdf, temp_dir};
+
+fn photo_capture() -> &'static Path {
+    static DIR: OnceLock<PathBuf> = OnceLock::new();
+    DIR.get_or_init(|| {
+        let out = temp_dir().join("photos");
+        let o = svbrdf(&[
+            "synth",
+            "--photos",
+            "5",
+            "--duration",
+            "0.5",
+            "--marker-dictionary",
+            "DICT_APRILTAG_36h11",
+            "--seed",
+            "4",
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "synth failed: {}", stderr(&o));
+        out
+    })
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+#[test]
+fn photo_set_aligns_fits_and_evaluates() {
+    let cap = photo_capture();
+    let aligned = temp_dir().join("aligned");
+    let o = svbrdf(&[
+        "align",
+        "--photos",
+        s(&cap.join("photos")),
+        "--reference",
+        s(&cap.join("reference.jpg")),
+        "--camera",
+        s(&cap.join("photos_camera.json")),
+        "--out",
+        s(&aligned),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let c: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(aligned.join("capture.json")).unwrap())
+            .unwrap();
+    assert_eq!(c["sources"][0]["kind"], "images");
+    assert_eq!(c["frames"].as_array().map(Vec::len), Some(5));
+    assert!(c["frames"][0]["image"].as_str().unwrap().ends_with(".jpg"));
+
+    // Geometry against the truth.
+    let o = svbrdf(&[
+        "bench",
+        "--no-brdf",
+        "--align-capture",
+        s(&aligned),
+        "--truth",
+        s(cap),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
+    let px = v["align_error_px_median"].as_f64().unwrap_or(f64::NAN);
+    let mm = v["camera_error_mm_median"].as_f64().unwrap_or(f64::NAN);
+    assert!(px < 0.5, "photo alignment {px} px: {v}");
+    assert!(mm < 3.0, "photo camera positions {mm} mm: {v}");
+
+    let maps = temp_dir().join("maps");
+    let o = svbrdf(&["fit", "--capture", s(&aligned), "--out", s(&maps)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(maps.join("maps/diffuse.exr").is_file());
+
+    let eval = temp_dir().join("eval");
+    let o = svbrdf(&[
+        "eval",
+        "--capture",
+        s(&aligned),
+        "--holdout",
+        "3,4",
+        "--out",
+        s(&eval),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let e: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(eval.join("eval/eval.json")).unwrap())
+            .unwrap();
+    assert_eq!(e["fitted_frames"], 3);
+    let ssim = e["mean"]["ssim_srgb"].as_f64().unwrap();
+    assert!(ssim > 0.7, "held-out SSIM {ssim}: {e}");
+    assert!(eval.join("eval/strip_003.png").is_file());
+}
+
+#[test]
+fn photo_folders_that_cannot_work_are_named() {
+    let cap = photo_capture();
+    let empty = temp_dir();
+    let run = |photos: &Path| {
+        svbrdf(&[
+            "align",
+            "--photos",
+            s(photos),
+            "--reference",
+            s(&cap.join("reference.jpg")),
+            "--camera",
+            s(&cap.join("photos_camera.json")),
+            "--out",
+            s(&temp_dir().join("a")),
+        ])
+    };
+    let o = run(&empty);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("expected at least 2"), "{}", stderr(&o));
+    // A photo of another size among them.
+    let mixed = temp_dir().join("mixed");
+    std::fs::create_dir_all(&mixed).unwrap();
+    for n in ["photo_00.jpg", "photo_01.jpg"] {
+        std::fs::copy(cap.join("photos").join(n), mixed.join(n)).unwrap();
+    }
+    image::RgbImage::from_pixel(64, 48, image::Rgb([90, 90, 90]))
+        .save(mixed.join("photo_02.png"))
+        .unwrap();
+    let o = run(&mixed);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("photo_02.png") && e.contains("64x48"), "{e}");
+}
