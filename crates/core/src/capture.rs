@@ -352,6 +352,18 @@ impl RegisteredCapture {
         Ok(cap)
     }
 
+    /// Read a capture given as its folder or its `capture.json`, with the folder its
+    /// relative source paths start from.
+    pub fn load_with_folder(path: &Path) -> Result<(Self, std::path::PathBuf), CoreError> {
+        let cap = Self::load(path)?;
+        let dir = if path.is_dir() {
+            path.to_path_buf()
+        } else {
+            path.parent().map(Path::to_path_buf).unwrap_or_default()
+        };
+        Ok((cap, dir))
+    }
+
     /// Write `capture.json` into a folder, atomically.
     pub fn save(&self, dir: &Path) -> Result<(), CoreError> {
         let file = dir.join(CAPTURE_FILE);

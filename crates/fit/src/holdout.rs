@@ -352,15 +352,7 @@ pub fn evaluate_holdout(
     progress: &dyn Progress,
 ) -> Result<(HoldoutReport, PathBuf), FitError> {
     cfg.fit.validate()?;
-    let capture = RegisteredCapture::load(capture_dir)?;
-    let dir = if capture_dir.is_dir() {
-        capture_dir.to_path_buf()
-    } else {
-        capture_dir
-            .parent()
-            .map(Path::to_path_buf)
-            .unwrap_or_default()
-    };
+    let (capture, dir) = RegisteredCapture::load_with_folder(capture_dir)?;
     let (train, held) = split(&capture, &dir, &cfg.holdout)?;
     let staging = svbrdf_core::fsutil::StagingDir::new(out, overwrite)?;
     let root = staging.path().to_path_buf();

@@ -91,15 +91,7 @@ pub fn run(
     progress: &dyn Progress,
 ) -> Result<FitRun, FitError> {
     cfg.validate()?;
-    let capture = RegisteredCapture::load(capture_dir)?;
-    let dir = if capture_dir.is_dir() {
-        capture_dir.to_path_buf()
-    } else {
-        capture_dir
-            .parent()
-            .map(std::path::Path::to_path_buf)
-            .unwrap_or_default()
-    };
+    let (capture, dir) = RegisteredCapture::load_with_folder(capture_dir)?;
     if capture.frames.is_empty() {
         return Err(FitError::NoData(format!(
             "{}: the capture has no frames",

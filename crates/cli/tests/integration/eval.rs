@@ -2,7 +2,7 @@
 //! photographs in `../shared/data/real/` (absent in a user's clone: the tests then
 //! skip and say why; CI has the data and `SVBRDF_REQUIRE_TOOLS=1` makes them required).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 
 use crate::util::{repo_root, skip_without, stderr, svbrdf, temp_dir};
 
@@ -19,6 +19,20 @@ fn cards_blue() -> Option<PathBuf> {
     Some(p)
 }
 
+/// `svbrdf import` of the real photos into a fresh folder.
+fn import(data: &Path) -> PathBuf {
+    let cap = temp_dir().join("cards");
+    let o = svbrdf(&[
+        "import",
+        "--materialgan",
+        data.to_str().unwrap(),
+        "--out",
+        cap.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    cap
+}
+
 fn json(path: PathBuf) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(&path).unwrap_or_else(|e| {
         panic!("{}: {e}", path.display());
@@ -32,15 +46,7 @@ fn json(path: PathBuf) -> serde_json::Value {
 #[test]
 fn eval_on_real_photos_beats_the_diffuse_only_baseline() {
     let Some(data) = cards_blue() else { return };
-    let cap = temp_dir().join("cards");
-    let o = svbrdf(&[
-        "import",
-        "--materialgan",
-        data.to_str().unwrap(),
-        "--out",
-        cap.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let cap = import(&data);
     let c = json(cap.join("capture.json"));
     assert_eq!(c["frames"].as_array().map(Vec::len), Some(9));
     assert!(c["light_intensity"].is_null());
@@ -108,15 +114,7 @@ fn eval_on_real_photos_beats_the_diffuse_only_baseline() {
 #[test]
 fn eval_and_import_name_bad_input() {
     let Some(data) = cards_blue() else { return };
-    let cap = temp_dir().join("cards");
-    let o = svbrdf(&[
-        "import",
-        "--materialgan",
-        data.to_str().unwrap(),
-        "--out",
-        cap.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let cap = import(&data);
     let o = svbrdf(&[
         "eval",
         "--capture",
