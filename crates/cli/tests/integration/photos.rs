@@ -131,3 +131,72 @@ fn photo_folders_that_cannot_work_are_named() {
     let e = stderr(&o);
     assert!(e.contains("photo_02.png") && e.contains("64x48"), "{e}");
 }
+
+/// A JPEG whose pixels are stored rotated with an EXIF orientation tag (6: turn 90
+/// degrees clockwise to view), as phones write portrait photos.
+fn jpeg_with_orientation_6(upright: &image::RgbImage) -> Vec<u8> {
+    let stored = image::imageops::rotate270(upright);
+    let mut jpeg = Vec::new();
+    image::codecs::jpeg::JpegEncoder::new_with_quality(&mut jpeg, 95)
+        .encode_image(&stored)
+        .unwrap();
+    // APP1 "Exif": a big-endian TIFF header and one IFD entry, Orientation = 6.
+    let mut app1 = vec![0xFF, 0xE1, 0x00, 0x22];
+    app1.extend_from_slice(b"Exif\0\0MM\0\x2A\0\0\0\x08");
+    app1.extend_from_slice(&[0, 1, 0x01, 0x12, 0, 3, 0, 0, 0, 1, 0, 6, 0, 0, 0, 0, 0, 0]);
+    assert_eq!(app1.len(), 2 + 0x22);
+    let mut out = jpeg[..2].to_vec();
+    out.extend(app1);
+    out.extend_from_slice(&jpeg[2..]);
+    out
+}
+
+#[test]
+fn exif_orientation_is_applied_to_photos() {
+    let cap = photo_capture();
+    let dir = temp_dir().join("exif");
+    std::fs::create_dir_all(&dir).unwrap();
+    for k in 0..5 {
+        let name = format!("photo_{k:02}.jpg");
+        let src = cap.join("photos").join(&name);
+        if k == 0 {
+            let upright = image::open(&src).unwrap().to_rgb8();
+            std::fs::write(dir.join(&name), jpeg_with_orientation_6(&upright)).unwrap();
+        } else {
+            std::fs::copy(&src, dir.join(&name)).unwrap();
+        }
+    }
+    // Stored sideways: read without the tag, the photo would have another size.
+    let raw = image::open(dir.join("photo_00.jpg")).unwrap();
+    assert_eq!((raw.width(), raw.height()), (1280, 720));
+    let aligned = temp_dir().join("aligned");
+    let o = svbrdf(&[
+        "align",
+        "--photos",
+        s(&dir),
+        "--reference",
+        s(&cap.join("reference.jpg")),
+        "--camera",
+        s(&cap.join("photos_camera.json")),
+        "--out",
+        s(&aligned),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = svbrdf(&[
+        "bench",
+        "--no-brdf",
+        "--align-capture",
+        s(&aligned),
+        "--truth",
+        s(cap),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
+    assert_eq!(v["frames_kept"], 5, "{v}");
+    let mm = v["camera_error_mm_p95"].as_f64().unwrap_or(f64::NAN);
+    assert!(
+        mm < 3.0,
+        "camera positions {mm} mm with the rotated photo: {v}"
+    );
+}
