@@ -171,6 +171,10 @@ struct AlignArgs {
     /// Test all frame pairs in coarse alignment (slow; for benchmarks).
     #[arg(long)]
     all_pairs: bool,
+    /// Fine-match each frame with at most this many of its strongest coarse connections
+    /// (the time chain is always kept); default 8.
+    #[arg(long)]
+    max_pairs_per_frame: Option<usize>,
     #[command(flatten)]
     second: SecondArgs,
     /// Replace the output folder if it exists.
@@ -239,6 +243,9 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
         })?);
     }
     c.all_pairs = a.all_pairs;
+    if let Some(v) = a.max_pairs_per_frame {
+        c.max_pairs_per_frame = v;
+    }
     if let Some(p) = &a.second.second_camera {
         // Missing fields take the paper's two-camera values, not the flash phone's.
         let raw: serde_json::Value = svbrdf_core::fsutil::read_json(p)?;
