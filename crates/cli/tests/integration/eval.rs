@@ -94,6 +94,18 @@ fn eval_on_real_photos_beats_the_diffuse_only_baseline() {
     );
     let report = std::fs::read_to_string(out.join("report.html")).unwrap();
     assert!(report.contains("Held-out photographs") && report.contains("07.png"));
+    // The strips show in a real browser, with every other image of the report.
+    let url = format!("file://{}", out.join("report.html").display());
+    if let Some(dom) = crate::util::chromium_dom(&url, 5000) {
+        use crate::util::body_attribute;
+        assert_eq!(body_attribute(&dom, "data-error"), None, "script error");
+        let n = body_attribute(&dom, "data-images-expected").unwrap();
+        assert_eq!(
+            body_attribute(&dom, "data-images-loaded"),
+            Some(format!("{n}/{n}"))
+        );
+        assert!(dom.contains("<section id=\"eval\""));
+    }
 
     // `run --capture` takes the imported capture through fit, export and report.
     let run = temp_dir().join("run");
