@@ -527,6 +527,19 @@ fn normaliser(w: u32, h: u32) -> Mat3 {
     )
 }
 
+/// The frames the blur metric keeps (eq. 1, per stream) and how many it drops.
+fn drop_blurry(frames: Vec<FrameData>, sigmas: f64) -> (Vec<FrameData>, usize) {
+    let metrics: Vec<f64> = frames.iter().map(|f| f.blur).collect();
+    let blurry: BTreeSet<usize> = blurry_frames(&metrics, sigmas).into_iter().collect();
+    let sharp = frames
+        .into_iter()
+        .enumerate()
+        .filter(|(i, _)| !blurry.contains(i))
+        .map(|(_, f)| f)
+        .collect();
+    (sharp, blurry.len())
+}
+
 /// Linear interpolation of a time-sorted track; `None` outside its span (one
 /// millisecond of slack at either end).
 pub fn interpolate_track(track: &[(f64, Vec3)], t: f64) -> Option<Vec3> {
@@ -566,21 +579,13 @@ pub fn register(
     };
     // Blur selection (video frames only: a still photo was taken on purpose, and a
     // handful of them gives no statistics).
-    let metrics: Vec<f64> = decoded.iter().map(|f| f.blur).collect();
-    let blurry: BTreeSet<usize> = if ordered {
-        blurry_frames(&metrics, cfg.blur_sigmas)
-            .into_iter()
-            .collect()
+    let frames = if ordered {
+        let (sharp, blurry) = drop_blurry(decoded, cfg.blur_sigmas);
+        drops.blurry = blurry;
+        sharp
     } else {
-        BTreeSet::new()
+        decoded
     };
-    drops.blurry = blurry.len();
-    let frames: Vec<FrameData> = decoded
-        .into_iter()
-        .enumerate()
-        .filter(|(i, _)| !blurry.contains(i))
-        .map(|(_, f)| f)
-        .collect();
     if frames.len() < 2 {
         return Err(AlignError::Connect(format!(
             "only {} sharp frame(s) out of {}: need at least 2",
@@ -660,22 +665,13 @@ pub fn register(
     let intrinsics2 = second.as_ref().map(|s| s.intrinsics);
     let mut second_drops = None;
     if let Some(sec) = second {
-        let metrics: Vec<f64> = sec.frames.iter().map(|f| f.blur).collect();
-        let blurry2: BTreeSet<usize> = blurry_frames(&metrics, cfg.blur_sigmas)
-            .into_iter()
-            .collect();
+        let decoded2 = sec.frames.len();
+        let (kept2, blurry2) = drop_blurry(sec.frames, cfg.blur_sigmas);
         second_drops = Some(DropCounts {
-            decoded: sec.frames.len(),
-            blurry: blurry2.len(),
+            decoded: decoded2,
+            blurry: blurry2,
             ..DropCounts::default()
         });
-        let kept2: Vec<FrameData> = sec
-            .frames
-            .into_iter()
-            .enumerate()
-            .filter(|(i, _)| !blurry2.contains(i))
-            .map(|(_, f)| f)
-            .collect();
         let (base, m) = (frames.len(), kept2.len());
         for (k, f) in kept2.iter().enumerate() {
             for d in 1..=2 {
@@ -906,9 +902,8 @@ pub fn register(
 
     // Back to pixel coordinates, poses from the centre sub-frame, region check.
     let region = rf.marker_region().expanded(cfg.camera.marker_size_cm);
-    let mut out_frames = Vec::new();
-    let mut mappings = Vec::new();
-    let mut poses = Vec::new();
+    // Registered frames with a plausible pose: (frame, sub-frame maps, pose).
+    let mut posed = Vec::new();
     for &i in &registered {
         let (grid, second) = (&grids[i], frames[i].stream != 0);
         let (width, height) = (frames[i].width, frames[i].height);
@@ -974,43 +969,37 @@ pub fn register(
             }
             continue;
         }
-        out_frames.push(frames[i].clone());
-        mappings.push(blocks);
-        poses.push(pose);
+        posed.push((i, blocks, pose));
     }
     // Light positions: the flash camera's own, and for the second stream the flash
     // camera's at the synchronised time, interpolated between the nearest kept flash
     // frames (frames outside their time span are dropped, not extrapolated).
     let offset = Vec3::from(cfg.camera.flash_offset_cm);
-    let mut flash_track: Vec<(f64, Vec3)> = out_frames
+    let mut flash_track: Vec<(f64, Vec3)> = posed
         .iter()
-        .zip(&poses)
-        .filter(|(f, _)| f.stream == 0)
-        .map(|(f, p)| (f.time_s, p.camera_to_world(offset)))
+        .filter(|(i, _, _)| frames[*i].stream == 0)
+        .map(|(i, _, p)| (frames[*i].time_s, p.camera_to_world(offset)))
         .collect();
     flash_track.sort_by(|a, b| a.0.total_cmp(&b.0));
-    let mut lights = Vec::with_capacity(out_frames.len());
-    let mut keep = Vec::with_capacity(out_frames.len());
-    for (f, p) in out_frames.iter().zip(&poses) {
-        if f.stream == 0 {
-            lights.push(p.camera_to_world(offset));
-            keep.push(true);
+    let (mut out_frames, mut mappings, mut poses, mut lights) =
+        (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+    for (i, blocks, pose) in posed {
+        let light = if frames[i].stream == 0 {
+            Some(pose.camera_to_world(offset))
+        } else {
+            interpolate_track(&flash_track, frames[i].time_s)
+        };
+        let Some(light) = light else {
+            if let Some(d) = &mut second_drops {
+                d.outside += 1;
+            }
             continue;
-        }
-        let light = interpolate_track(&flash_track, f.time_s);
-        keep.push(light.is_some());
-        if let Some(l) = light {
-            lights.push(l);
-        } else if let Some(d) = &mut second_drops {
-            d.outside += 1;
-        }
+        };
+        out_frames.push(frames[i].clone());
+        mappings.push(blocks);
+        poses.push(pose);
+        lights.push(light);
     }
-    let mut it = keep.iter();
-    out_frames.retain(|_| *it.next().unwrap_or(&false));
-    let mut it = keep.iter();
-    mappings.retain(|_| *it.next().unwrap_or(&false));
-    let mut it = keep.iter();
-    poses.retain(|_| *it.next().unwrap_or(&false));
     drops.kept = out_frames.iter().filter(|f| f.stream == 0).count();
     if let Some(d) = &mut second_drops {
         d.kept = out_frames.len() - drops.kept;

@@ -197,7 +197,7 @@ pub fn align_accuracy(
                 let k = truth
                     .photos
                     .iter()
-                    .position(|p| format!("photo_{:02}.jpg", p.index) == *name);
+                    .position(|p| svbrdf_synth::truth::photo_file(p.index) == *name);
                 (k.unwrap_or(0) as u64, k.and_then(|k| truth.photos.get(k)))
             }
             _ => continue,
@@ -344,16 +344,13 @@ pub fn fit_accuracy(
     let truth = load_truth(synth_dir)?;
     let mut capture = svbrdf_core::capture::RegisteredCapture::load(capture_dir)?;
     capture.light_intensity = None;
-    let mut cfg = crate::fit_cmd::fit_config(&crate::fit_cmd::FitArgs {
-        capture: capture_dir.into(),
-        out: std::path::PathBuf::new(),
+    let mut cfg = crate::fit_cmd::fit_config(&crate::fit_cmd::FitOptions {
         config: config.map(Into::into),
         model: model.into(),
         px_per_cm: None,
         light_intensity: None,
         no_refine: true,
         seed: None,
-        overwrite: false,
     })?;
     let grid = svbrdf_fit::output_grid(&capture, &cfg)?;
     let t = Instant::now();
@@ -666,10 +663,14 @@ pub fn run(a: &BenchArgs) -> Result<()> {
             out: a.eval_out.clone(),
             diffuse_only: false,
             baseline: true,
-            config: None,
-            model: "ward".into(),
-            px_per_cm: Some(a.eval_px_per_cm),
-            no_refine: false,
+            fit: crate::fit_cmd::FitOptions {
+                config: None,
+                model: "ward".into(),
+                px_per_cm: Some(a.eval_px_per_cm),
+                light_intensity: None,
+                no_refine: false,
+                seed: None,
+            },
             overwrite: false,
         };
         let s = crate::eval_cmd::run_eval(&args)?;

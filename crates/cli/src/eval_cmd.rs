@@ -8,7 +8,7 @@ use clap::Args;
 use serde_json::json;
 use svbrdf_fit::holdout::{evaluate_holdout, HoldoutConfig, HoldoutReport, MeanErrors};
 
-use crate::fit_cmd::{CvFrames, FitArgs};
+use crate::fit_cmd::{CvFrames, FitOptions};
 
 #[derive(Args, Clone)]
 pub struct ImportArgs {
@@ -81,35 +81,16 @@ pub struct EvalArgs {
     /// Also evaluate the diffuse-only baseline (into OUT/diffuse-only/) and report both.
     #[arg(long, conflicts_with = "diffuse_only")]
     pub baseline: bool,
-    /// Fit settings file (JSON subset of `svbrdf_fit::FitConfig`).
-    #[arg(long)]
-    pub config: Option<PathBuf>,
-    /// Reflectance model: ward or ggx.
-    #[arg(long, default_value = "ward")]
-    pub model: String,
-    /// Output resolution, pixels per cm (default: the capture's; lower is faster).
-    #[arg(long)]
-    pub px_per_cm: Option<f64>,
-    /// Skip the per-pixel refinement.
-    #[arg(long)]
-    pub no_refine: bool,
+    /// How to fit (as `svbrdf fit`; a lower --px-per-cm is faster).
+    #[command(flatten)]
+    pub fit: FitOptions,
     /// Replace the output folder if it exists.
     #[arg(long)]
     pub overwrite: bool,
 }
 
 fn holdout_config(a: &EvalArgs, holdout: Vec<u32>, diffuse_only: bool) -> Result<HoldoutConfig> {
-    let mut fit = crate::fit_cmd::fit_config(&FitArgs {
-        capture: a.capture.clone(),
-        out: a.out.clone(),
-        config: a.config.clone(),
-        model: a.model.clone(),
-        px_per_cm: a.px_per_cm,
-        light_intensity: None,
-        no_refine: a.no_refine,
-        seed: None,
-        overwrite: a.overwrite,
-    })?;
+    let mut fit = crate::fit_cmd::fit_config(&a.fit)?;
     fit.diffuse_only = diffuse_only;
     Ok(HoldoutConfig {
         holdout,
@@ -121,10 +102,14 @@ fn holdout_config(a: &EvalArgs, holdout: Vec<u32>, diffuse_only: bool) -> Result
 fn one(a: &EvalArgs, holdout: Vec<u32>, out: &Path, diffuse_only: bool) -> Result<HoldoutReport> {
     let cfg = holdout_config(a, holdout, diffuse_only)?;
     let progress = crate::progress::Bars::new();
-    let (report, out) = evaluate_holdout(&a.capture, out, a.overwrite, &cfg, &CvFrames, &progress)
-        .with_context(|| format!("evaluating {}", a.capture.display()))?;
-    // The report reads maps/ and eval/; it needs the maps as exportable materials.
-    let maps = crate::run_cmd::load_maps(&out.join(crate::run_cmd::MAPS))?;
+    let (report, out, fitted) =
+        evaluate_holdout(&a.capture, out, a.overwrite, &cfg, &CvFrames, &progress)
+            .with_context(|| format!("evaluating {}", a.capture.display()))?;
+    let maps = svbrdf_export::MaterialMaps {
+        model: cfg.fit.model,
+        grid: fitted.grid,
+        params: fitted.params,
+    };
     svbrdf_export::report::write_report(&out, Some(&maps))?;
     say!(
         "{}held out {:?}: linear RMSE {:.4} ({:.1}% of the mean), sRGB RMSE {:.4}, SSIM linear {:.3}, sRGB {:.3}; {}",

@@ -18,6 +18,16 @@ pub struct FitArgs {
     /// Output folder for the maps (must not exist unless --overwrite).
     #[arg(long)]
     pub out: PathBuf,
+    #[command(flatten)]
+    pub options: FitOptions,
+    /// Replace the output folder if it exists.
+    #[arg(long)]
+    pub overwrite: bool,
+}
+
+/// How to fit: the settings `fit` and `eval` share.
+#[derive(Args, Clone)]
+pub struct FitOptions {
     /// Settings file (JSON; any subset of the fields of `svbrdf_fit::FitConfig`, e.g.
     /// `{"min_cluster_px": 100, "refine_prior": 4}`); the flags below override it.
     #[arg(long)]
@@ -38,12 +48,9 @@ pub struct FitArgs {
     /// Seed of the clustering's random choices.
     #[arg(long)]
     pub seed: Option<u64>,
-    /// Replace the output folder if it exists.
-    #[arg(long)]
-    pub overwrite: bool,
 }
 
-pub fn fit_config(a: &FitArgs) -> Result<FitConfig> {
+pub fn fit_config(a: &FitOptions) -> Result<FitConfig> {
     let mut c: FitConfig = match &a.config {
         Some(p) => svbrdf_core::fsutil::read_json(p)?,
         None => FitConfig::default(),
@@ -96,7 +103,7 @@ impl FrameSource for CvFrames {
 }
 
 pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
-    let cfg = fit_config(a)?;
+    let cfg = fit_config(&a.options)?;
     svbrdf_cv::set_single_threaded()?;
     crate::alloc::retain_freed_pages(false);
     let progress = crate::progress::Bars::new();

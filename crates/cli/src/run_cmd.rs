@@ -250,12 +250,14 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
     let fit_args = crate::fit_cmd::FitArgs {
         capture: a.capture.clone().unwrap_or_else(|| a.out.join(ALIGNED)),
         out: a.out.join(MAPS),
-        config: a.fit_config.clone(),
-        model: a.model.clone(),
-        px_per_cm: None,
-        light_intensity: None,
-        no_refine: a.no_refine,
-        seed: a.seed,
+        options: crate::fit_cmd::FitOptions {
+            config: a.fit_config.clone(),
+            model: a.model.clone(),
+            px_per_cm: None,
+            light_intensity: None,
+            no_refine: a.no_refine,
+            seed: a.seed,
+        },
         overwrite: true,
     };
     let export_args = ExportArgs {
@@ -267,7 +269,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
     };
     // Validate every setting before the first stage starts.
     let align_cfg = crate::align_config(&align_args)?;
-    let fit_cfg = crate::fit_cmd::fit_config(&fit_args)?;
+    let fit_cfg = crate::fit_cmd::fit_config(&fit_args.options)?;
     let export_cfg = export_config(&export_args);
     export_cfg.validate()?;
 
@@ -279,8 +281,8 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         "reference": identity(&a.reference)?,
         "capture": identity(&a.capture.as_ref().map(|c| if c.is_dir() { c.join(svbrdf_core::capture::CAPTURE_FILE) } else { c.clone() }))?,
         "camera": match &a.camera { Some(c) => file_identity(c)?, None => Value::Null },
-        "second_video": match &a.second.second_video { Some(v) => file_identity(v)?, None => Value::Null },
-        "second_camera": match &a.second.second_camera { Some(c) => file_identity(c)?, None => Value::Null },
+        "second_video": identity(&a.second.second_video)?,
+        "second_camera": identity(&a.second.second_camera)?,
     });
     let record_path = a.out.join(RUN_FILE);
     let previous: Option<Value> = if record_path.exists() {

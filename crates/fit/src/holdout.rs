@@ -342,7 +342,8 @@ pub struct HoldoutConfig {
 
 /// Fit `capture_dir` without the held-out frames into `out/maps`, render the held-out
 /// frames and write `out/eval/eval.json` and the strips. `out` is built under a
-/// temporary name and renamed when complete.
+/// temporary name and renamed when complete. Returns the figures, the folder and the
+/// fitted maps (for a report, without reading them again).
 pub fn evaluate_holdout(
     capture_dir: &Path,
     out: &Path,
@@ -350,7 +351,7 @@ pub fn evaluate_holdout(
     cfg: &HoldoutConfig,
     source: &dyn FrameSource,
     progress: &dyn Progress,
-) -> Result<(HoldoutReport, PathBuf), FitError> {
+) -> Result<(HoldoutReport, PathBuf, crate::output::LoadedMaps), FitError> {
     cfg.fit.validate()?;
     let (capture, dir) = RegisteredCapture::load_with_folder(capture_dir)?;
     let (train, held) = split(&capture, &dir, &cfg.holdout)?;
@@ -436,7 +437,7 @@ pub fn evaluate_holdout(
     };
     svbrdf_core::fsutil::write_json(&eval_dir.join(EVAL_FILE), &report)?;
     let out = staging.commit()?;
-    Ok((report, out))
+    Ok((report, out, maps))
 }
 
 #[cfg(test)]

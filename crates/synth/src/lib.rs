@@ -605,7 +605,7 @@ fn render_photos(
             u64::from(k),
         );
         svbrdf_cv::write_jpeg(
-            &out.join(format!("photo_{k:02}.jpg")),
+            &out.join(truth::photo_file(u64::from(k))),
             &img,
             ps.jpeg_quality,
         )?;

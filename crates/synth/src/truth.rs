@@ -115,6 +115,11 @@ pub struct FrameTruth {
     pub markers_visible: Vec<i32>,
 }
 
+/// File name, inside `photos/`, of the simulator's flash photo `index`.
+pub fn photo_file(index: u64) -> String {
+    format!("photo_{index:02}.jpg")
+}
+
 /// Map file names.
 #[derive(Debug, Clone, Serialize, Deserialize)]
 pub struct MapFiles {

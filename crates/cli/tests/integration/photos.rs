@@ -32,21 +32,41 @@ fn s(p: &Path) -> &str {
     p.to_str().unwrap()
 }
 
-#[test]
-fn photo_set_aligns_fits_and_evaluates() {
+/// `svbrdf align --photos` of a folder against the simulated capture's reference.
+fn align_photos(photos: &Path, out: &Path) -> std::process::Output {
     let cap = photo_capture();
-    let aligned = temp_dir().join("aligned");
-    let o = svbrdf(&[
+    svbrdf(&[
         "align",
         "--photos",
-        s(&cap.join("photos")),
+        s(photos),
         "--reference",
         s(&cap.join("reference.jpg")),
         "--camera",
         s(&cap.join("photos_camera.json")),
         "--out",
-        s(&aligned),
+        s(out),
+    ])
+}
+
+/// The alignment accuracy of an aligned photo set against the simulator's truth.
+fn accuracy(aligned: &Path) -> serde_json::Value {
+    let o = svbrdf(&[
+        "bench",
+        "--no-brdf",
+        "--align-capture",
+        s(aligned),
+        "--truth",
+        s(photo_capture()),
     ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap()
+}
+
+#[test]
+fn photo_set_aligns_fits_and_evaluates() {
+    let cap = photo_capture();
+    let aligned = temp_dir().join("aligned");
+    let o = align_photos(&cap.join("photos"), &aligned);
     assert!(o.status.success(), "{}", stderr(&o));
     let c: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(aligned.join("capture.json")).unwrap())
@@ -56,17 +76,7 @@ fn photo_set_aligns_fits_and_evaluates() {
     assert!(c["frames"][0]["image"].as_str().unwrap().ends_with(".jpg"));
 
     // Geometry against the truth.
-    let o = svbrdf(&[
-        "bench",
-        "--no-brdf",
-        "--align-capture",
-        s(&aligned),
-        "--truth",
-        s(cap),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let v: serde_json::Value =
-        serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
+    let v = accuracy(&aligned);
     let px = v["align_error_px_median"].as_f64().unwrap_or(f64::NAN);
     let mm = v["camera_error_mm_median"].as_f64().unwrap_or(f64::NAN);
     assert!(px < 0.5, "photo alignment {px} px: {v}");
@@ -101,19 +111,7 @@ fn photo_set_aligns_fits_and_evaluates() {
 fn photo_folders_that_cannot_work_are_named() {
     let cap = photo_capture();
     let empty = temp_dir();
-    let run = |photos: &Path| {
-        svbrdf(&[
-            "align",
-            "--photos",
-            s(photos),
-            "--reference",
-            s(&cap.join("reference.jpg")),
-            "--camera",
-            s(&cap.join("photos_camera.json")),
-            "--out",
-            s(&temp_dir().join("a")),
-        ])
-    };
+    let run = |photos: &Path| align_photos(photos, &temp_dir().join("a"));
     let o = run(&empty);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("expected at least 2"), "{}", stderr(&o));
@@ -170,29 +168,9 @@ fn exif_orientation_is_applied_to_photos() {
     let raw = image::open(dir.join("photo_00.jpg")).unwrap();
     assert_eq!((raw.width(), raw.height()), (1280, 720));
     let aligned = temp_dir().join("aligned");
-    let o = svbrdf(&[
-        "align",
-        "--photos",
-        s(&dir),
-        "--reference",
-        s(&cap.join("reference.jpg")),
-        "--camera",
-        s(&cap.join("photos_camera.json")),
-        "--out",
-        s(&aligned),
-    ]);
+    let o = align_photos(&dir, &aligned);
     assert!(o.status.success(), "{}", stderr(&o));
-    let o = svbrdf(&[
-        "bench",
-        "--no-brdf",
-        "--align-capture",
-        s(&aligned),
-        "--truth",
-        s(cap),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let v: serde_json::Value =
-        serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
+    let v = accuracy(&aligned);
     assert_eq!(v["frames_kept"], 5, "{v}");
     let mm = v["camera_error_mm_p95"].as_f64().unwrap_or(f64::NAN);
     assert!(
