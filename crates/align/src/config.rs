@@ -8,6 +8,18 @@ use crate::AlignError;
 
 pub use svbrdf_core::camera_description::CameraDescription;
 
+/// How fine correspondences between frames are found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, Default)]
+#[serde(rename_all = "snake_case")]
+pub enum FineMethod {
+    /// Coarse SIFT matches refined at full resolution by patch correlation (ours:
+    /// about 3x more precise than full-resolution SIFT and far cheaper).
+    #[default]
+    Patch,
+    /// The paper's: SIFT at full resolution (`fine_features` per frame), matched anew.
+    Sift,
+}
+
 /// Stage parameters. Pixel distances are given at the paper's 3840-pixel long side and
 /// scaled to the actual resolution.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -31,6 +43,10 @@ pub struct AlignConfig {
     /// Radius of the flash highlight whose features are dropped, as a fraction of the
     /// image's long side (paper: 75 px at 960).
     pub highlight_radius: f64,
+    /// How fine correspondences are found.
+    pub fine_method: FineMethod,
+    /// Patch half-width for `FineMethod::Patch` at 3840 px (scaled, at least 5 px).
+    pub patch_radius_px: f64,
     /// Long side of the images for fine features, pixels (paper: full scale, 3840).
     pub fine_long_side: u32,
     /// SIFT features per fine image (paper: 12,000).
@@ -48,7 +64,9 @@ pub struct AlignConfig {
     /// Weight of a match with the reference photo relative to a match between frames:
     /// the reference is coarser and lit differently, so its features are less precise.
     pub reference_weight: f64,
-    /// Weight of sub-frame agreement in their overlaps, relative to a feature match.
+    /// Weight of sub-frame agreement in their overlaps, relative to a feature match
+    /// (4: measured on the paper preset, 95th percentile 0.57 -> 0.52 px against 1; 16
+    /// is worse).
     pub overlap_weight: f64,
     /// Gauss-Newton iterations of the global solve.
     pub iterations: usize,
@@ -82,6 +100,8 @@ impl Default for AlignConfig {
             coarse_inlier_px: 20.0,
             coarse_min_inliers: 20,
             highlight_radius: 75.0 / 960.0,
+            fine_method: FineMethod::Patch,
+            patch_radius_px: 12.0,
             fine_long_side: 3840,
             fine_features: 12000,
             fine_inlier_px: 60.0,
@@ -90,7 +110,7 @@ impl Default for AlignConfig {
             sift_contrast: 0.02,
             match_reference: true,
             reference_weight: 1.0,
-            overlap_weight: 1.0,
+            overlap_weight: 4.0,
             iterations: 8,
             max_pairs_per_frame: 8,
             all_pairs: false,
@@ -172,6 +192,20 @@ impl AlignConfig {
                 "inlier distance",
                 self.fine_inlier_px.min(self.coarse_inlier_px),
                 "pixels, > 0",
+            ));
+        }
+        if !(self.patch_radius_px >= 2.0 && self.patch_radius_px <= 64.0) {
+            return Err(AlignError::invalid(
+                "patch radius",
+                self.patch_radius_px,
+                "pixels at 3840 px, in [2, 64]",
+            ));
+        }
+        if !(self.overlap_weight >= 0.0 && self.overlap_weight < 1e6) {
+            return Err(AlignError::invalid(
+                "overlap weight",
+                self.overlap_weight,
+                "a finite weight >= 0",
             ));
         }
         if !(0.0..0.5).contains(&self.highlight_radius) {

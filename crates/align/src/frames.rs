@@ -3,6 +3,7 @@
 //! memory, so memory grows with the number of kept frames, not with video length.
 
 use std::path::Path;
+use std::sync::Arc;
 
 use rayon::prelude::*;
 use svbrdf_core::geometry::Vec2;
@@ -12,7 +13,8 @@ use svbrdf_cv::features::{downscaled, sift, Features};
 use svbrdf_cv::video::VideoReader;
 
 use crate::blur::blur_metric;
-use crate::config::AlignConfig;
+use crate::config::{AlignConfig, FineMethod};
+use crate::patch::Grey;
 use crate::reference::MarkerObservation;
 use crate::{AlignError, Progress};
 
@@ -37,8 +39,11 @@ pub struct FrameData {
     pub markers: Vec<MarkerObservation>,
     /// Coarse features, coordinates in full-resolution pixels.
     pub coarse: Features,
-    /// Fine features, coordinates in full-resolution pixels.
+    /// Fine features, coordinates in full-resolution pixels (`FineMethod::Sift`).
     pub fine: Features,
+    /// Luminance at the fine scale for patch refinement (`FineMethod::Patch`); shared,
+    /// since frames are cloned while the connected set is chosen.
+    pub grey: Option<Arc<Grey>>,
     /// Small image for the panorama (long side <= 480).
     pub thumb: ImageU8,
 }
@@ -107,16 +112,29 @@ fn process(
         )?,
         cs,
     );
-    let fine_img = downscaled(img, fs)?;
-    let fine = unscale(
-        sift(
-            &fine_img,
-            cfg.fine_features,
-            cfg.sift_contrast,
-            exclude(fine_img.width, fine_img.height),
-        )?,
-        fs,
-    );
+    let fine_img = if fs < 1.0 {
+        std::borrow::Cow::Owned(downscaled(img, fs)?)
+    } else {
+        std::borrow::Cow::Borrowed(img)
+    };
+    let (fine, grey) = match cfg.fine_method {
+        FineMethod::Sift => (
+            unscale(
+                sift(
+                    &fine_img,
+                    cfg.fine_features,
+                    cfg.sift_contrast,
+                    exclude(fine_img.width, fine_img.height),
+                )?,
+                fs,
+            ),
+            None,
+        ),
+        FineMethod::Patch => (
+            Features::default(),
+            Some(Arc::new(Grey::from_image(&fine_img))),
+        ),
+    };
     let ts = (480.0 / long).min(1.0);
     let thumb = downscaled(img, ts)?;
     Ok(FrameData {
@@ -130,6 +148,7 @@ fn process(
         markers,
         coarse,
         fine,
+        grey,
         thumb,
     })
 }

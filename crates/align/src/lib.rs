@@ -21,6 +21,7 @@ pub mod corners;
 mod frames;
 mod matching;
 pub mod output;
+pub mod patch;
 pub mod pose;
 pub mod reference;
 pub mod solve;
@@ -32,7 +33,7 @@ use std::time::Instant;
 use svbrdf_core::CoreError;
 use svbrdf_cv::CvError;
 
-pub use config::{AlignConfig, CameraDescription};
+pub use config::{AlignConfig, CameraDescription, FineMethod};
 pub use frames::FrameData;
 pub use matching::Connectivity;
 

@@ -11,8 +11,9 @@ use svbrdf_cv::features::{
 };
 
 use crate::blur::blurry_frames;
-use crate::config::AlignConfig;
+use crate::config::{AlignConfig, FineMethod};
 use crate::frames::FrameData;
+use crate::patch::{refine, Grey, PatchSettings};
 use crate::pose::pose_from_homography;
 use crate::reference::ReferenceFrame;
 use crate::solve::{solve, Constraint, SolveReport};
@@ -26,28 +27,53 @@ type FineMatch = (Vec<[f64; 2]>, Vec<[f64; 2]>, Mat3);
 /// Features of the reference photo with their plane positions (cm).
 pub struct ReferenceFeatures {
     features: Features,
+    /// Full-resolution reference pixels of the features.
+    pixels: Vec<Vec2>,
     plane: Vec<Vec2>,
+    /// Full-resolution luminance, for `FineMethod::Patch`.
+    grey: Option<Grey>,
+    /// plane_from_pixel of the reference photo.
+    plane_from_pixel: Homography,
 }
 
-/// Reference-photo features for absolute anchoring of frames.
+/// Reference-photo features for absolute anchoring of frames. With patch refinement
+/// they are matched with the frames' coarse features, so they are detected at about
+/// the same density per cm: the reference is taken from about twice the frames'
+/// height, so at twice the coarse long side, with four times the features.
 pub fn reference_features(
     img: &ImageU8,
     rf: &ReferenceFrame,
     cfg: &AlignConfig,
 ) -> Result<ReferenceFeatures, AlignError> {
     let long = img.width.max(img.height) as f64;
-    let s = (f64::from(cfg.fine_long_side) / long).min(1.0);
+    let (side, count) = match cfg.fine_method {
+        FineMethod::Sift => (f64::from(cfg.fine_long_side), cfg.fine_features * 2),
+        FineMethod::Patch => (
+            2.0 * f64::from(cfg.coarse_long_side),
+            cfg.coarse_features * 4,
+        ),
+    };
+    let s = (side / long).min(1.0);
     let small = downscaled(img, s)?;
-    let mut f = sift(&small, cfg.fine_features * 2, cfg.sift_contrast, None)?;
+    let f = sift(&small, count, cfg.sift_contrast, None)?;
     let mut plane = Vec::with_capacity(f.len());
-    for p in &mut f.points {
+    let mut pixels = Vec::with_capacity(f.len());
+    for p in &f.points {
         let full = Vec2::new(
             (f64::from(p[0]) + 0.5) / s - 0.5,
             (f64::from(p[1]) + 0.5) / s - 0.5,
         );
+        pixels.push(full);
         plane.push(rf.plane_from_pixel.apply(full).unwrap_or_else(Vec2::zeros));
     }
-    Ok(ReferenceFeatures { features: f, plane })
+    let grey = (cfg.fine_method == FineMethod::Patch).then(|| Grey::from_image(img));
+    Ok(ReferenceFeatures {
+        features: f,
+        pixels,
+        plane,
+        grey,
+        plane_from_pixel: rf.plane_from_pixel,
+    })
 }
 
 /// The connectivity map (paper 3.1.3): inlier counts between kept frames.
@@ -390,6 +416,9 @@ fn fine_pair(
     b: &FrameData,
     cfg: &AlignConfig,
 ) -> Result<Option<FineMatch>, AlignError> {
+    if cfg.fine_method == FineMethod::Patch {
+        return fine_pair_patch(a, b, cfg);
+    }
     let m = match_one_to_one(&a.fine, &b.fine, 0.8)?;
     let min = fine_min(a, cfg);
     if m.len() < min {
@@ -415,6 +444,164 @@ fn fine_pair(
         keep.iter().map(|&k| dst[k]).collect(),
         svbrdf_core::geometry::mat3_from_rows(&h),
     )))
+}
+
+/// Patch settings for a frame of `long` full-resolution pixels whose patch image is
+/// `grey_long` pixels: the radius scales with the patch image, the search covers the
+/// coarse features' localisation error (about one coarse pixel).
+fn patch_settings(cfg: &AlignConfig, long: f64, grey_long: f64) -> PatchSettings {
+    let coarse_px = grey_long / f64::from(cfg.coarse_long_side).min(long);
+    PatchSettings {
+        radius: (cfg.patch_radius_px * grey_long / 3840.0).round().max(5.0) as usize,
+        search: (coarse_px.round() as i32).clamp(3, 8),
+        ..PatchSettings::default()
+    }
+}
+
+/// Full-resolution pixel to patch-image pixel (pixel centres at integers).
+fn to_grey(p: Vec2, s: f64) -> Vec2 {
+    Vec2::new((p.x + 0.5) * s - 0.5, (p.y + 0.5) * s - 0.5)
+}
+
+/// Refine coarse correspondences `(a px, b px)` (full resolution) by patches: `a`'s
+/// point stays, `b`'s moves to where `a`'s patch, warped by the local linear part of
+/// `h_ab`, matches best. Returns the kept pairs, full-resolution pixels.
+fn refine_matches(
+    (ga, width_a): (&Grey, u32),
+    (gb, width_b): (&Grey, u32),
+    matches: impl Iterator<Item = (Vec2, Vec2)>,
+    h_ab: &Mat3,
+    settings: &PatchSettings,
+) -> Vec<([f64; 2], Vec2)> {
+    let (sa, sb) = (
+        ga.width as f64 / f64::from(width_a),
+        gb.width as f64 / f64::from(width_b),
+    );
+    let Some(h_ba) = h_ab.try_inverse().map(Homography) else {
+        return Vec::new();
+    };
+    matches
+        .filter_map(|(p, q)| {
+            // b -> a offsets, in patch-image pixels of each.
+            let f0 = h_ba.apply(q)?;
+            let fx = h_ba.apply(q + Vec2::new(1.0, 0.0))? - f0;
+            let fy = h_ba.apply(q + Vec2::new(0.0, 1.0))? - f0;
+            let k = sa / sb;
+            let jac = [k * fx.x, k * fy.x, k * fx.y, k * fy.y];
+            let (qr, _) = refine(ga, to_grey(p, sa), gb, to_grey(q, sb), jac, settings)?;
+            let q_full = Vec2::new((qr.x + 0.5) / sb - 0.5, (qr.y + 0.5) / sb - 0.5);
+            Some(([p.x, p.y], q_full))
+        })
+        .collect()
+}
+
+/// [`fine_pair`] by patch refinement of the coarse matches.
+fn fine_pair_patch(
+    a: &FrameData,
+    b: &FrameData,
+    cfg: &AlignConfig,
+) -> Result<Option<FineMatch>, AlignError> {
+    let (Some(ga), Some(gb)) = (a.grey.as_deref(), b.grey.as_deref()) else {
+        return Ok(None);
+    };
+    let m = match_one_to_one(&a.coarse, &b.coarse, 0.8)?;
+    let min = fine_min(a, cfg);
+    if m.len() < min {
+        return Ok(None);
+    }
+    let long = f64::from(a.width.max(a.height));
+    let thr = cfg.fine_inlier_px * long / 3840.0;
+    let src = pts(&a.coarse, m.iter().map(|x| x.0));
+    let dst = pts(&b.coarse, m.iter().map(|x| x.1));
+    let Some(Robust { model, inliers }) = estimate_homography(&src, &dst, thr)? else {
+        return Ok(None);
+    };
+    let h = svbrdf_core::geometry::mat3_from_rows(&model);
+    let settings = patch_settings(cfg, long, ga.width.max(ga.height) as f64);
+    let refined = refine_matches(
+        (ga, a.width),
+        (gb, b.width),
+        (0..src.len()).filter(|&k| inliers[k]).map(|k| {
+            (
+                Vec2::new(src[k][0], src[k][1]),
+                Vec2::new(dst[k][0], dst[k][1]),
+            )
+        }),
+        &h,
+        &settings,
+    );
+    if refined.len() < min {
+        return Ok(None);
+    }
+    Ok(Some((
+        refined.iter().map(|r| r.0).collect(),
+        refined.iter().map(|r| [r.1.x, r.1.y]).collect(),
+        h,
+    )))
+}
+
+/// Absolute anchors of one frame from the reference photo by patch refinement:
+/// (frame px, plane cm).
+fn reference_anchors_patch(
+    f: &FrameData,
+    rfe: &ReferenceFeatures,
+    cfg: &AlignConfig,
+    thr_cm: f64,
+) -> Result<Vec<([f64; 2], Vec2)>, AlignError> {
+    let (Some(ga), Some(gr)) = (f.grey.as_deref(), rfe.grey.as_ref()) else {
+        return Ok(Vec::new());
+    };
+    let m = match_one_to_one(&f.coarse, &rfe.features, 0.8)?;
+    let min = fine_min(f, cfg);
+    if m.len() < min {
+        return Ok(Vec::new());
+    }
+    let src = pts(&f.coarse, m.iter().map(|x| x.0));
+    let dst: Vec<[f64; 2]> = m
+        .iter()
+        .map(|x| [rfe.pixels[x.1 as usize].x, rfe.pixels[x.1 as usize].y])
+        .collect();
+    // The inlier distance on the plane in reference pixels.
+    let c = Vec2::new(0.5 * gr.width as f64, 0.5 * gr.height as f64);
+    let cm_per_ref_px = match (
+        rfe.plane_from_pixel.apply(c),
+        rfe.plane_from_pixel.apply(c + Vec2::new(1.0, 0.0)),
+    ) {
+        (Some(a), Some(b)) => (a - b).norm().max(1e-9),
+        _ => return Ok(Vec::new()),
+    };
+    let Some(Robust { model, inliers }) = estimate_homography(&src, &dst, thr_cm / cm_per_ref_px)?
+    else {
+        return Ok(Vec::new());
+    };
+    let keep: Vec<usize> = (0..src.len()).filter(|&k| inliers[k]).collect();
+    if keep.len() < min {
+        return Ok(Vec::new());
+    }
+    let h_fr = Homography(svbrdf_core::geometry::mat3_from_rows(&model));
+    let (fp, rp): (Vec<Vec2>, Vec<Vec2>) = keep
+        .iter()
+        .map(|&k| {
+            (
+                Vec2::new(src[k][0], src[k][1]),
+                Vec2::new(dst[k][0], dst[k][1]),
+            )
+        })
+        .unzip();
+    let long = f64::from(f.width.max(f.height));
+    let settings = patch_settings(cfg, long, ga.width.max(ga.height) as f64);
+    let refined = refine_matches(
+        (ga, f.width),
+        (gr, gr.width as u32),
+        fp.into_iter().zip(rp),
+        &h_fr.0,
+        &settings,
+    );
+    let out: Vec<([f64; 2], Vec2)> = refined
+        .into_iter()
+        .filter_map(|(p, r)| Some((p, rfe.plane_from_pixel.apply(r)?)))
+        .collect();
+    Ok(if out.len() >= min { out } else { Vec::new() })
 }
 
 /// Sub-frame layout of one frame: rectangles with overlap, and the core cells.
@@ -626,9 +813,13 @@ pub fn register(
         )));
     }
     let in_comp: HashMap<usize, usize> = comp.iter().enumerate().map(|(k, &i)| (i, k)).collect();
+    // The thresholded, filtered map decides which frames are kept (its largest
+    // component, as in the paper); fine matching then uses every pair that coarse
+    // RANSAC verified among them. Measured on the paper preset (4 s): 18 -> 54 fine
+    // pairs, 95th percentile alignment error 0.53 -> 0.50 px.
     let all: Vec<(usize, usize)> = connectivity
-        .kept
-        .iter()
+        .counts
+        .keys()
         .filter(|(i, j)| in_comp.contains_key(i) && in_comp.contains_key(j))
         .map(|&(i, j)| (in_comp[&i], in_comp[&j]))
         .collect();
@@ -710,39 +901,49 @@ pub fn register(
         .map(|f| {
             let out = match ref_features {
                 None => Ok(Vec::new()),
-                Some(rfe) => match_one_to_one(&f.fine, &rfe.features, 0.8).and_then(|m| {
-                    let min = fine_min(f, cfg);
-                    if m.len() < min {
-                        return Ok(Vec::new());
-                    }
-                    let src = pts(&f.fine, m.iter().map(|x| x.0));
-                    let dst: Vec<[f64; 2]> = m
-                        .iter()
-                        .map(|x| [rfe.plane[x.1 as usize].x, rfe.plane[x.1 as usize].y])
-                        .collect();
-                    // Verify on the plane: a homography frame px -> plane cm, with the
-                    // inlier distance converted through a rough frame scale.
+                Some(rfe) if cfg.fine_method == FineMethod::Patch => {
                     let thr_px = cfg.fine_inlier_px * f64::from(f.width.max(f.height)) / 3840.0;
-                    let thr_cm = thr_px * cm_per_px;
-                    Ok(match estimate_homography(&src, &dst, thr_cm)? {
-                        Some(Robust { inliers: inl, .. })
-                            if inl.iter().filter(|v| **v).count() >= min =>
-                        {
-                            (0..src.len())
-                                .filter(|&k| inl[k])
-                                .map(|k| (src[k], Vec2::new(dst[k][0], dst[k][1])))
-                                .collect()
+                    reference_anchors_patch(f, rfe, cfg, thr_px * cm_per_px)
+                }
+                Some(rfe) => match_one_to_one(&f.fine, &rfe.features, 0.8)
+                    .and_then(|m| {
+                        let min = fine_min(f, cfg);
+                        if m.len() < min {
+                            return Ok(Vec::new());
                         }
-                        _ => Vec::new(),
+                        let src = pts(&f.fine, m.iter().map(|x| x.0));
+                        let dst: Vec<[f64; 2]> = m
+                            .iter()
+                            .map(|x| [rfe.plane[x.1 as usize].x, rfe.plane[x.1 as usize].y])
+                            .collect();
+                        // Verify on the plane: a homography frame px -> plane cm, with the
+                        // inlier distance converted through a rough frame scale.
+                        let thr_px = cfg.fine_inlier_px * f64::from(f.width.max(f.height)) / 3840.0;
+                        let thr_cm = thr_px * cm_per_px;
+                        Ok(match estimate_homography(&src, &dst, thr_cm)? {
+                            Some(Robust { inliers: inl, .. })
+                                if inl.iter().filter(|v| **v).count() >= min =>
+                            {
+                                (0..src.len())
+                                    .filter(|&k| inl[k])
+                                    .map(|k| (src[k], Vec2::new(dst[k][0], dst[k][1])))
+                                    .collect()
+                            }
+                            _ => Vec::new(),
+                        })
                     })
-                }),
+                    .map_err(AlignError::from),
             };
             progress.advance(1);
             out
         })
-        .collect::<Result<_, svbrdf_cv::CvError>>()?;
+        .collect::<Result<_, AlignError>>()?;
     progress.finish();
     lap("fine matching");
+    // The patch images (1 GB for 120 4K frames) are not needed any more.
+    for f in &mut frames {
+        f.grey = None;
+    }
 
     // Marker anchors (eqs. 5-6).
     let world_markers: HashMap<i32, [Vec2; 4]> =

@@ -22,6 +22,7 @@
 
 use std::collections::HashMap;
 
+use faer::sparse::linalg::solvers::{Llt, SymbolicLlt};
 use faer::sparse::{SparseColMat, Triplet};
 use faer::Side;
 use svbrdf_core::geometry::{Mat3, Vec2};
@@ -227,6 +228,7 @@ pub fn solve(
     };
     let mut lambda = 1e-4;
     let mut current = cost(&x);
+    let mut symbolic: Option<SymbolicLlt<usize>> = None;
     for it in 0..iterations {
         let mut ne = Normal {
             blocks: HashMap::new(),
@@ -239,6 +241,9 @@ pub fn solve(
         // Levenberg damping on the diagonal; keeps blocks without data well-posed.
         let mut improved = false;
         for _ in 0..6 {
+            // Every entry of every block, zeros included: the sparsity pattern must
+            // stay the same from one factorisation to the next, so that the symbolic
+            // analysis (the fill-reducing ordering) is done once per solve.
             let mut trips = Vec::with_capacity(ne.blocks.len() * 128);
             for (&(a, b), blk) in &ne.blocks {
                 for k in 0..8 {
@@ -247,11 +252,9 @@ pub fn solve(
                         if a == b && k == l {
                             v += lambda * (v.abs() + 1e-6);
                         }
-                        if v != 0.0 {
-                            trips.push(Triplet::new(a * 8 + k, b * 8 + l, v));
-                            if a != b {
-                                trips.push(Triplet::new(b * 8 + l, a * 8 + k, v));
-                            }
+                        trips.push(Triplet::new(a * 8 + k, b * 8 + l, v));
+                        if a != b {
+                            trips.push(Triplet::new(b * 8 + l, a * 8 + k, v));
                         }
                     }
                 }
@@ -263,7 +266,16 @@ pub fn solve(
             }
             let mat = SparseColMat::<usize, f64>::try_new_from_triplets(8 * n, 8 * n, &trips)
                 .map_err(|e| AlignError::Solve(format!("assembling normal equations: {e:?}")))?;
-            let llt = match mat.sp_cholesky(Side::Lower) {
+            if symbolic.is_none() {
+                symbolic = Some(SymbolicLlt::try_new(mat.symbolic(), Side::Lower).map_err(
+                    |e| AlignError::Solve(format!("ordering the normal equations: {e:?}")),
+                )?);
+            }
+            let llt_r = match &symbolic {
+                Some(sym) => Llt::try_new_with_symbolic(sym.clone(), mat.as_ref(), Side::Lower),
+                None => continue,
+            };
+            let llt = match llt_r {
                 Ok(l) => l,
                 Err(_) => {
                     lambda *= 10.0;

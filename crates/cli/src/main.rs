@@ -151,11 +151,17 @@ struct AlignArgs {
     /// Output resolution in pixels per cm (default: half the frames' sampling density).
     #[arg(long)]
     px_per_cm: Option<f64>,
-    /// Long side, in pixels, of the images used for fine features (default 3840: full
+    /// How fine correspondences are found: `patch` (default: coarse SIFT matches
+    /// refined at full resolution by patch correlation) or `sift` (the paper's: SIFT at
+    /// full resolution, slower and less precise).
+    #[arg(long, value_parser = ["patch", "sift"])]
+    fine_method: Option<String>,
+    /// Long side, in pixels, of the images used for fine matching (default 3840: full
     /// resolution for 4K video; lower is faster and less precise).
     #[arg(long)]
     fine_long_side: Option<u32>,
-    /// Fine SIFT features per frame (default 12000, the paper's).
+    /// Fine SIFT features per frame with `--fine-method sift` (default 12000, the
+    /// paper's).
     #[arg(long)]
     fine_features: Option<usize>,
     /// Minimum fine inliers per frame pair (default 60, the paper's).
@@ -168,6 +174,10 @@ struct AlignArgs {
     /// Sub-frame grid as COLSxROWS (default: the paper's 5x11 at 2160x3840, scaled).
     #[arg(long)]
     subframes: Option<String>,
+    /// Weight of agreement between neighbouring sub-frames where they overlap, relative
+    /// to one feature match (default 4).
+    #[arg(long)]
+    overlap_weight: Option<f64>,
     /// Test all frame pairs in coarse alignment (slow; for benchmarks).
     #[arg(long)]
     all_pairs: bool,
@@ -220,9 +230,19 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
         });
     }
     c.px_per_cm = a.px_per_cm;
+    if let Some(m) = &a.fine_method {
+        c.fine_method = match m.as_str() {
+            "sift" => svbrdf_align::FineMethod::Sift,
+            _ => svbrdf_align::FineMethod::Patch,
+        };
+    }
     if let Some(v) = a.fine_long_side {
         c.fine_long_side = v;
     }
+    if let Some(v) = a.overlap_weight {
+        c.overlap_weight = v;
+    }
+
     if let Some(v) = a.fine_features {
         c.fine_features = v;
     }
