@@ -8,6 +8,9 @@
 //! alignment: a coarse match predicts the position to a few pixels, and the patch
 //! locates it to a small fraction of a pixel.
 
+// Index loops over the small normal equations read more clearly than iterator chains.
+#![allow(clippy::needless_range_loop)]
+
 use svbrdf_core::geometry::Vec2;
 use svbrdf_core::image::ImageU8;
 
