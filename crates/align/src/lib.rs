@@ -117,6 +117,12 @@ pub struct AlignSummary {
     pub solve_rms_cm: f64,
     /// Median residual after the solve, cm.
     pub solve_median_cm: f64,
+    /// Gauss-Newton iterations of the global solve (factorisations).
+    #[serde(default)]
+    pub solve_iterations: usize,
+    /// Further steps that reused a factorisation.
+    #[serde(default)]
+    pub solve_cheap_steps: usize,
     /// Unknowns in the solve.
     pub unknowns: usize,
     /// Wall-clock seconds per stage.

@@ -7,7 +7,8 @@ use svbrdf_core::geometry::{Intrinsics, Mat3, Pose, Vec2, Vec3};
 use svbrdf_core::homography::Homography;
 use svbrdf_core::image::ImageU8;
 use svbrdf_cv::features::{
-    downscaled, estimate_homography, estimate_similarity, match_one_to_one, sift, Features, Robust,
+    downscaled, estimate_homography, estimate_similarity, match_indexed, match_into,
+    match_one_to_one, sift, Features, MatchIndex, Robust,
 };
 
 use crate::blur::blurry_frames;
@@ -19,8 +20,9 @@ use crate::reference::ReferenceFrame;
 use crate::solve::{solve, Constraint, SolveReport};
 use crate::{AlignError, DropCounts, Progress};
 
-/// A verified similarity between two frames (2x3, row-major) and its inlier count.
-type SimilarityMatch = ([[f64; 3]; 2], usize);
+/// A verified similarity between two frames (2x3, row-major) and its inlier matches
+/// (coarse feature indices in a and b).
+type SimilarityMatch = ([[f64; 3]; 2], Vec<(u32, u32)>);
 /// Verified correspondences (frame a px, frame b px) and the homography a -> b.
 type FineMatch = (Vec<[f64; 2]>, Vec<[f64; 2]>, Mat3);
 
@@ -34,6 +36,8 @@ pub struct ReferenceFeatures {
     grey: Option<Grey>,
     /// plane_from_pixel of the reference photo.
     plane_from_pixel: Homography,
+    /// Search index of the features (`FineMethod::Patch`), built once for all frames.
+    index: Option<MatchIndex>,
 }
 
 /// Reference-photo features for absolute anchoring of frames. With patch refinement
@@ -67,7 +71,12 @@ pub fn reference_features(
         plane.push(rf.plane_from_pixel.apply(full).unwrap_or_else(Vec2::zeros));
     }
     let grey = (cfg.fine_method == FineMethod::Patch).then(|| Grey::from_image(img));
+    let index = match cfg.fine_method {
+        FineMethod::Patch => Some(MatchIndex::new(&f)?),
+        FineMethod::Sift => None,
+    };
     Ok(ReferenceFeatures {
+        index,
         features: f,
         pixels,
         plane,
@@ -83,6 +92,9 @@ pub struct Connectivity {
     pub frames: usize,
     /// Raw inlier counts of tested pairs.
     pub counts: HashMap<(usize, usize), usize>,
+    /// The inlier matches (coarse feature indices) of verified pairs, reused by fine
+    /// matching.
+    pub matches: HashMap<(usize, usize), Vec<(u32, u32)>>,
     /// Pairs kept after thresholding and median filtering.
     pub kept: BTreeSet<(usize, usize)>,
 }
@@ -152,15 +164,15 @@ fn pts(f: &Features, idx: impl Iterator<Item = u32>) -> Vec<[f64; 2]> {
 
 /// Similarity between two frames' coarse features: (2x3 matrix a -> b, inliers).
 fn coarse_pair(
-    a: &FrameData,
-    b: &FrameData,
+    (a, ia): (&FrameData, &MatchIndex),
+    (b, ib): (&FrameData, &MatchIndex),
     cfg: &AlignConfig,
 ) -> Result<Option<SimilarityMatch>, AlignError> {
     let long = f64::from(a.width.max(a.height));
     let cs = (f64::from(cfg.coarse_long_side) / long).min(1.0);
     let area = f64::from(a.width) * f64::from(a.height) * cs * cs;
     let min = AlignConfig::scaled_min(cfg.coarse_min_inliers, 960.0 * 540.0, area);
-    let m = match_one_to_one(&a.coarse, &b.coarse, 0.8)?;
+    let m = match_indexed(ia, ib, 0.8)?;
     if m.len() < min {
         return Ok(None);
     }
@@ -172,8 +184,13 @@ fn coarse_pair(
              model: t,
              inliers: inl,
          }| {
-            let n = inl.iter().filter(|v| **v).count();
-            (n >= min).then_some((t, n))
+            let kept: Vec<(u32, u32)> = m
+                .iter()
+                .zip(&inl)
+                .filter(|(_, ok)| **ok)
+                .map(|(x, _)| *x)
+                .collect();
+            (kept.len() >= min).then_some((t, kept))
         },
     ))
 }
@@ -181,6 +198,7 @@ fn coarse_pair(
 /// [`coarse_pair`] for many pairs in parallel.
 fn coarse_pairs(
     frames: &[FrameData],
+    index: &[MatchIndex],
     pairs: &[(usize, usize)],
     cfg: &AlignConfig,
     progress: &dyn Progress,
@@ -188,7 +206,7 @@ fn coarse_pairs(
     pairs
         .par_iter()
         .map(|&(i, j)| {
-            let r = coarse_pair(&frames[i], &frames[j], cfg);
+            let r = coarse_pair((&frames[i], &index[i]), (&frames[j], &index[j]), cfg);
             progress.advance(1);
             r.map(|r| (i, j, r))
         })
@@ -209,6 +227,7 @@ fn coarse(
 ) -> Result<(Connectivity, usize), AlignError> {
     let n = frames.len();
     let mut counts = HashMap::new();
+    let mut matches = HashMap::new();
     let mut tested = 0usize;
     let chain: Vec<(usize, usize)> = if cfg.all_pairs {
         (0..n)
@@ -218,12 +237,18 @@ fn coarse(
         (0..n.saturating_sub(1)).map(|i| (i, i + 1)).collect()
     };
     progress.stage("coarse alignment", chain.len() as u64);
-    let results = coarse_pairs(frames, &chain, cfg, progress)?;
+    // Each frame meets a dozen others: its search index is built once.
+    let index: Vec<MatchIndex> = frames
+        .par_iter()
+        .map(|f| MatchIndex::new(&f.coarse))
+        .collect::<Result<_, _>>()?;
+    let results = coarse_pairs(frames, &index, &chain, cfg, progress)?;
     tested += chain.len();
     let mut sims: HashMap<(usize, usize), Mat3> = HashMap::new();
     for (i, j, r) in results {
-        if let Some((t, c)) = r {
-            counts.insert((i, j), c);
+        if let Some((t, m)) = r {
+            counts.insert((i, j), m.len());
+            matches.insert((i, j), m);
             sims.insert((i, j), sim_to_mat(&t));
         }
     }
@@ -286,11 +311,12 @@ fn coarse(
         }
         let extra: Vec<(usize, usize)> = extra.into_iter().collect();
         progress.stage("loop closure", extra.len() as u64);
-        let results = coarse_pairs(frames, &extra, cfg, progress)?;
+        let results = coarse_pairs(frames, &index, &extra, cfg, progress)?;
         tested += extra.len();
         for (i, j, r) in results {
-            if let Some((_, c)) = r {
-                counts.insert((i, j), c);
+            if let Some((_, m)) = r {
+                counts.insert((i, j), m.len());
+                matches.insert((i, j), m);
             }
         }
     }
@@ -300,6 +326,7 @@ fn coarse(
         Connectivity {
             frames: n,
             counts,
+            matches,
             kept,
         },
         tested,
@@ -414,10 +441,11 @@ fn fine_min(f: &FrameData, cfg: &AlignConfig) -> usize {
 fn fine_pair(
     a: &FrameData,
     b: &FrameData,
+    coarse_matches: Option<&[(u32, u32)]>,
     cfg: &AlignConfig,
 ) -> Result<Option<FineMatch>, AlignError> {
     if cfg.fine_method == FineMethod::Patch {
-        return fine_pair_patch(a, b, cfg);
+        return fine_pair_patch(a, b, coarse_matches, cfg);
     }
     let m = match_one_to_one(&a.fine, &b.fine, 0.8)?;
     let min = fine_min(a, cfg);
@@ -495,16 +523,21 @@ fn refine_matches(
         .collect()
 }
 
-/// [`fine_pair`] by patch refinement of the coarse matches.
+/// [`fine_pair`] by patch refinement of the coarse matches (those of the coarse stage
+/// where given, else matched here).
 fn fine_pair_patch(
     a: &FrameData,
     b: &FrameData,
+    coarse_matches: Option<&[(u32, u32)]>,
     cfg: &AlignConfig,
 ) -> Result<Option<FineMatch>, AlignError> {
     let (Some(ga), Some(gb)) = (a.grey.as_deref(), b.grey.as_deref()) else {
         return Ok(None);
     };
-    let m = match_one_to_one(&a.coarse, &b.coarse, 0.8)?;
+    let m = match coarse_matches {
+        Some(m) => m.to_vec(),
+        None => match_one_to_one(&a.coarse, &b.coarse, 0.8)?,
+    };
     let min = fine_min(a, cfg);
     if m.len() < min {
         return Ok(None);
@@ -548,10 +581,11 @@ fn reference_anchors_patch(
     cfg: &AlignConfig,
     thr_cm: f64,
 ) -> Result<Vec<([f64; 2], Vec2)>, AlignError> {
-    let (Some(ga), Some(gr)) = (f.grey.as_deref(), rfe.grey.as_ref()) else {
+    let (Some(ga), Some(gr), Some(index)) = (f.grey.as_deref(), rfe.grey.as_ref(), &rfe.index)
+    else {
         return Ok(Vec::new());
     };
-    let m = match_one_to_one(&f.coarse, &rfe.features, 0.8)?;
+    let m = match_into(&f.coarse, index, 0.8)?;
     let min = fine_min(f, cfg);
     if m.len() < min {
         return Ok(Vec::new());
@@ -888,7 +922,11 @@ pub fn register(
     let fine: Vec<_> = pairs
         .par_iter()
         .map(|&(i, j)| {
-            let r = fine_pair(&frames[i], &frames[j], cfg);
+            // Flash-stream pairs reuse their coarse inlier matches.
+            let known = (j < n_flash)
+                .then(|| connectivity.matches.get(&(comp[i], comp[j])))
+                .flatten();
+            let r = fine_pair(&frames[i], &frames[j], known.map(Vec::as_slice), cfg);
             progress.advance(1);
             r.map(|r| (i, j, r))
         })
@@ -1043,8 +1081,29 @@ pub fn register(
         slot.insert(i, init_blocks.len());
         let h = init[i].unwrap_or_else(Mat3::identity)
             * nrms[i].try_inverse().unwrap_or_else(Mat3::identity);
-        for _ in 0..grids[i].len() {
-            init_blocks.push(h);
+        // A sub-frame with enough absolute anchors of its own starts from them: lens
+        // distortion bends each sub-frame's map away from the frame's single
+        // homography by up to tens of pixels, and a close start saves solver iterations.
+        let mut own: Vec<(Vec<Vec2>, Vec<Vec2>)> = vec![(Vec::new(), Vec::new()); grids[i].len()];
+        let nrm = Homography(nrms[i]);
+        let absolute = anchors[i]
+            .iter()
+            .map(|(p, x)| (Vec2::new(p[0], p[1]), *x))
+            .chain(marker_anchors[i].iter().copied());
+        for (p, x) in absolute {
+            let c = grids[i].cell(p);
+            if let Some(q) = nrm.apply(p) {
+                own[c].0.push(q);
+                own[c].1.push(x);
+            }
+        }
+        for (src, dst) in &own {
+            let local = (src.len() >= 12)
+                .then(|| Homography::from_correspondences(src, dst).ok())
+                .flatten()
+                .map(|g| g.0)
+                .filter(|g| g.iter().all(|v| v.is_finite()));
+            init_blocks.push(local.unwrap_or(h));
         }
     }
     let sub = |frame: usize, p: Vec2| slot[&frame] + grids[frame].cell(p);

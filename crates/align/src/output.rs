@@ -252,6 +252,8 @@ pub fn write(
         frames_with_markers: reg.with_markers,
         solve_rms_cm: reg.solve.rms_after,
         solve_median_cm: reg.solve.median_after,
+        solve_iterations: reg.solve.iterations,
+        solve_cheap_steps: reg.solve.cheap_steps,
         unknowns: reg.solve.unknowns,
         timings,
         verified_pairs: reg.verified_pairs.clone(),

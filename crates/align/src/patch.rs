@@ -124,7 +124,21 @@ pub fn refine(
     // Integer search by normalised cross-correlation.
     let (cx, cy) = (pb.x.round() as i64, pb.y.round() as i64);
     let mut best = (f32::NEG_INFINITY, 0i32, 0i32);
-    let nf = (n * n) as f32;
+    // The integer search only has to find the right pixel (Gauss-Newton does the
+    // rest), so it compares every second row and column: a quarter of the work.
+    let sub: Vec<f32> = (0..n)
+        .step_by(2)
+        .flat_map(|k| (0..n).step_by(2).map(move |l| (k, l)))
+        .map(|(k, l)| t[k * n + l])
+        .collect();
+    let sub_mean = sub.iter().sum::<f32>() / sub.len() as f32;
+    let sub: Vec<f32> = sub.iter().map(|v| v - sub_mean).collect();
+    let sub_norm = sub.iter().map(|v| v * v).sum::<f32>().sqrt();
+    if sub_norm <= 0.0 {
+        return None;
+    }
+    let ns = n.div_ceil(2);
+    let nf = (ns * ns) as f32;
     for dy in -s.search..=s.search {
         for dx in -s.search..=s.search {
             let (x0, y0) = (
@@ -137,9 +151,9 @@ pub fn refine(
             // The template has zero mean, so the patch's mean drops out of the product:
             // one pass gives the product, the sum and the sum of squares.
             let (mut dot, mut s1, mut s2) = (0f32, 0f32, 0f32);
-            for (k, row) in (y0 as usize..y0 as usize + n).enumerate() {
+            for (k, row) in (y0 as usize..y0 as usize + n).step_by(2).enumerate() {
                 let src = &b.data[row * b.width + x0 as usize..row * b.width + x0 as usize + n];
-                for (&tv, &v) in t[k * n..(k + 1) * n].iter().zip(src) {
+                for (&tv, &v) in sub[k * ns..(k + 1) * ns].iter().zip(src.iter().step_by(2)) {
                     let v = f32::from(v);
                     dot += tv * v;
                     s1 += v;
@@ -151,7 +165,7 @@ pub fn refine(
             if var < nf {
                 continue;
             }
-            let ncc = dot / var.sqrt();
+            let ncc = dot / (var.sqrt() * sub_norm);
             if ncc > best.0 {
                 best = (ncc, dx, dy);
             }

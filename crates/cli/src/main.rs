@@ -319,8 +319,10 @@ fn run_align(a: &AlignArgs) -> Result<()> {
         say!("second video: {}", t.describe());
     }
     say!(
-        "global solve: {} unknowns, residual rms {:.4} cm, median {:.4} cm",
+        "global solve: {} unknowns, {} iterations (+{} reusing a factorisation), residual rms {:.4} cm, median {:.4} cm",
         s.unknowns,
+        s.solve_iterations,
+        s.solve_cheap_steps,
         s.solve_rms_cm,
         s.solve_median_cm
     );

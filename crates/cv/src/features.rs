@@ -3,6 +3,7 @@
 use opencv::core::{KeyPoint, Mat, Point2f, Scalar, Vector, CV_32F, CV_8UC1};
 use opencv::features2d::{FlannBasedMatcher, SIFT};
 use opencv::prelude::*;
+use std::sync::Mutex;
 use svbrdf_core::image::ImageU8;
 
 use crate::{rgb_to_mat, Context, CvError};
@@ -127,49 +128,104 @@ pub fn sift(
 const FLANN_TREES: i32 = 1;
 const FLANN_CHECKS: i32 = 8;
 
-/// One-to-one matches between two feature sets: nearest neighbours by FLANN that pass
-/// Lowe's ratio test in both directions and agree.
-pub fn match_one_to_one(
-    a: &Features,
-    b: &Features,
+fn flann_matcher() -> Result<FlannBasedMatcher, CvError> {
+    // FLANN's randomised kd-trees draw from OpenCV's per-thread RNG, whose state
+    // depends on what that thread ran before: with rayon's work stealing the same pair
+    // got different trees (and matches) from run to run. A fixed seed per index makes
+    // every match, and so the whole alignment, reproducible.
+    opencv::core::set_rng_seed(0x5eed).ctx(|| "seeding OpenCV's RNG".into())?;
+    // One randomised kd-tree and 8 leaf checks: a quarter of OpenCV's default cost (4
+    // trees, 32 checks) for as many matches passing the ratio test (measured on
+    // 3,000-feature frames); the robust estimators after it remove the rest.
+    let index = opencv::core::Ptr::new(
+        opencv::flann::KDTreeIndexParams::new(FLANN_TREES).ctx(|| "FLANN".into())?,
+    );
+    let search = opencv::core::Ptr::new(
+        opencv::flann::SearchParams::new_1(FLANN_CHECKS, 0.0, true).ctx(|| "FLANN".into())?,
+    );
+    FlannBasedMatcher::new(&index.into(), &search).ctx(|| "FLANN".into())
+}
+
+/// Best train feature per query row that passes Lowe's ratio test.
+fn ratio_best(m: &Vector<Vector<opencv::core::DMatch>>, ratio: f32) -> Vec<Option<u32>> {
+    m.iter()
+        .map(|pair| {
+            if pair.len() < 2 {
+                return None;
+            }
+            let (m0, m1) = (pair.get(0).ok()?, pair.get(1).ok()?);
+            (m0.distance < ratio * m1.distance).then_some(m0.train_idx as u32)
+        })
+        .collect()
+}
+
+/// A feature set with its search index built once, for matching it against many
+/// others (each frame is matched with a dozen neighbours, and every frame with the
+/// reference photo): building the kd-tree costs about as much as one search.
+pub struct MatchIndex {
+    matcher: Mutex<FlannBasedMatcher>,
+    descriptors: Mat,
+    len: usize,
+}
+
+impl MatchIndex {
+    /// Build the index of `f`.
+    pub fn new(f: &Features) -> Result<Self, CvError> {
+        let descriptors = f.descriptor_mat()?;
+        let mut matcher = flann_matcher()?;
+        if f.len() >= 2 {
+            let mut v = Vector::<Mat>::new();
+            v.push(descriptors.clone());
+            opencv::features2d::DescriptorMatcherTrait::add(&mut matcher, &v)
+                .ctx(|| "FLANN index".into())?;
+            opencv::features2d::DescriptorMatcherTrait::train(&mut matcher)
+                .ctx(|| "FLANN index".into())?;
+        }
+        Ok(Self {
+            matcher: Mutex::new(matcher),
+            descriptors,
+            len: f.len(),
+        })
+    }
+
+    /// For each row of `query`, the best of this set's features that passes the ratio
+    /// test.
+    fn best(&self, query: &Mat, ratio: f32) -> Result<Vec<Option<u32>>, CvError> {
+        let mut m = Vector::<Vector<opencv::core::DMatch>>::new();
+        if self.len < 2 || query.rows() == 0 {
+            return Ok(vec![None; query.rows().max(0) as usize]);
+        }
+        let mut matcher = self.matcher.lock().map_err(|_| CvError::Invalid {
+            what: "FLANN index".into(),
+            value: "poisoned".into(),
+            expected: "a usable index".into(),
+        })?;
+        opencv::features2d::DescriptorMatcherTrait::knn_match(
+            &mut *matcher,
+            query,
+            &mut m,
+            2,
+            &opencv::core::no_array(),
+            false,
+        )
+        .ctx(|| "FLANN matching".into())?;
+        Ok(ratio_best(&m, ratio))
+    }
+}
+
+/// One-to-one matches between two indexed feature sets: nearest neighbours that pass
+/// Lowe's ratio test in both directions and agree. Matches are `(index in a, index in
+/// b)`.
+pub fn match_indexed(
+    a: &MatchIndex,
+    b: &MatchIndex,
     ratio: f32,
 ) -> Result<Vec<(u32, u32)>, CvError> {
-    if a.len() < 2 || b.len() < 2 {
+    if a.len < 2 || b.len < 2 {
         return Ok(Vec::new());
     }
-    let (da, db) = (a.descriptor_mat()?, b.descriptor_mat()?);
-    let best = |q: &Mat, t: &Mat| -> Result<Vec<Option<u32>>, CvError> {
-        // FLANN's randomised kd-trees draw from OpenCV's per-thread RNG, whose state
-        // depends on what that thread ran before: with rayon's work stealing the same
-        // pair got different trees (and matches) from run to run. A fixed seed per
-        // index makes every match, and so the whole alignment, reproducible.
-        opencv::core::set_rng_seed(0x5eed).ctx(|| "seeding OpenCV's RNG".into())?;
-        // One randomised kd-tree and 8 leaf checks: a quarter of OpenCV's default cost
-        // (4 trees, 32 checks) for as many matches passing the ratio test (measured on
-        // 3,000-feature frames); the robust estimators after it remove the rest.
-        let index = opencv::core::Ptr::new(
-            opencv::flann::KDTreeIndexParams::new(FLANN_TREES).ctx(|| "FLANN".into())?,
-        );
-        let search = opencv::core::Ptr::new(
-            opencv::flann::SearchParams::new_1(FLANN_CHECKS, 0.0, true).ctx(|| "FLANN".into())?,
-        );
-        let matcher = FlannBasedMatcher::new(&index.into(), &search).ctx(|| "FLANN".into())?;
-        let mut m = Vector::<Vector<opencv::core::DMatch>>::new();
-        matcher
-            .knn_train_match_def(q, t, &mut m, 2)
-            .ctx(|| "FLANN matching".into())?;
-        Ok(m.iter()
-            .map(|pair| {
-                if pair.len() < 2 {
-                    return None;
-                }
-                let (m0, m1) = (pair.get(0).ok()?, pair.get(1).ok()?);
-                (m0.distance < ratio * m1.distance).then_some(m0.train_idx as u32)
-            })
-            .collect())
-    };
-    let ab = best(&da, &db)?;
-    let ba = best(&db, &da)?;
+    let ab = b.best(&a.descriptors, ratio)?;
+    let ba = a.best(&b.descriptors, ratio)?;
     Ok(ab
         .iter()
         .enumerate()
@@ -178,6 +234,51 @@ pub fn match_one_to_one(
             (ba.get(j as usize).copied().flatten() == Some(i as u32)).then_some((i as u32, j))
         })
         .collect())
+}
+
+/// One-to-one matches of a small feature set `a` against a large indexed set `b`
+/// (a frame against the reference photo): `a` is searched in `b`'s index, and only the
+/// features of `b` found that way are searched back in `a`.
+pub fn match_into(a: &Features, b: &MatchIndex, ratio: f32) -> Result<Vec<(u32, u32)>, CvError> {
+    if a.len() < 2 || b.len < 2 {
+        return Ok(Vec::new());
+    }
+    let ab = b.best(&a.descriptor_mat()?, ratio)?;
+    let mut hit: Vec<u32> = ab.iter().flatten().copied().collect();
+    hit.sort_unstable();
+    hit.dedup();
+    if hit.is_empty() {
+        return Ok(Vec::new());
+    }
+    let mut rows = Mat::default();
+    for &j in &hit {
+        rows.push_back(&b.descriptors.row(j as i32).ctx(|| "descriptors".into())?)
+            .ctx(|| "descriptors".into())?;
+    }
+    let back = MatchIndex::new(a)?.best(&rows, ratio)?;
+    let ba: std::collections::HashMap<u32, u32> = hit
+        .iter()
+        .zip(back)
+        .filter_map(|(&j, i)| Some((j, i?)))
+        .collect();
+    Ok(ab
+        .iter()
+        .enumerate()
+        .filter_map(|(i, j)| {
+            let j = (*j)?;
+            (ba.get(&j) == Some(&(i as u32))).then_some((i as u32, j))
+        })
+        .collect())
+}
+
+/// One-to-one matches between two feature sets: nearest neighbours by FLANN that pass
+/// Lowe's ratio test in both directions and agree.
+pub fn match_one_to_one(
+    a: &Features,
+    b: &Features,
+    ratio: f32,
+) -> Result<Vec<(u32, u32)>, CvError> {
+    match_indexed(&MatchIndex::new(a)?, &MatchIndex::new(b)?, ratio)
 }
 
 /// A robustly estimated model and which correspondences agree with it.
