@@ -20,18 +20,27 @@ pub struct Luminance {
 }
 
 impl Luminance {
-    /// Decode sRGB and weight channels by Rec. 709 luminance.
+    /// Decode sRGB and weight channels by Rec. 709 luminance (a one-channel image is
+    /// taken as sRGB-coded luminance already).
     pub fn new(img: &ImageU8) -> Self {
         let lut = srgb8_to_linear_table();
-        let data = img
-            .data
-            .chunks_exact(img.channels)
-            .map(|p| {
-                0.2126 * lut[p[0] as usize]
-                    + 0.7152 * lut[p[1] as usize]
-                    + 0.0722 * lut[p[2] as usize]
-            })
-            .collect();
+        let data = if img.channels < 3 {
+            // Already luminance (sRGB-coded): only linearise.
+            img.data
+                .iter()
+                .step_by(img.channels.max(1))
+                .map(|&v| lut[v as usize])
+                .collect()
+        } else {
+            img.data
+                .chunks_exact(img.channels)
+                .map(|p| {
+                    0.2126 * lut[p[0] as usize]
+                        + 0.7152 * lut[p[1] as usize]
+                        + 0.0722 * lut[p[2] as usize]
+                })
+                .collect()
+        };
         Self {
             w: img.width,
             h: img.height,

@@ -67,28 +67,34 @@ fn process(
     let long = img.width.max(img.height) as f64;
     let cs = (f64::from(cfg.coarse_long_side) / long).min(1.0);
     let fs = (f64::from(cfg.fine_long_side) / long).min(1.0);
-    let coarse_img = downscaled(img, cs)?;
+    // Everything but the thumbnail works on luminance: one conversion at full
+    // resolution, then area-averaged grey images (a third of the data of RGB).
+    let luma = Grey::from_image(img);
+    let luma = ImageU8 {
+        width: luma.width,
+        height: luma.height,
+        channels: 1,
+        data: luma.data,
+    };
+    let coarse_img = downscaled(&luma, cs)?;
     let grey: Vec<f32> = coarse_img
         .data
-        .chunks_exact(3)
-        .map(|p| {
-            (0.299 * f32::from(p[0]) + 0.587 * f32::from(p[1]) + 0.114 * f32::from(p[2])) / 255.0
-        })
+        .iter()
+        .map(|&v| f32::from(v) / 255.0)
         .collect();
     let blur = blur_metric(&grey, coarse_img.width, coarse_img.height);
-    // Markers at up to 1920 px: large enough for sub-pixel corners, cheap to search.
-    let ms = (1920.0 / long).min(1.0);
-    let marker_img = downscaled(img, ms)?;
+    // Markers are found in the coarse image (a quarter of the pixels of the 1920 px
+    // image) and their corners located at up to 1920 px, large enough for sub-pixel
+    // corners.
+    let ms = (1920.0 / long).min(1.0).max(cs);
+    let marker_img = downscaled(&luma, ms)?;
     let lum = crate::corners::Luminance::new(&marker_img);
     let cells = dict.cells();
-    let markers = detect_markers(&marker_img, dict)?
+    let to_ms = |c: [f64; 2]| Vec2::new((c[0] + 0.5) * ms / cs - 0.5, (c[1] + 0.5) * ms / cs - 0.5);
+    let markers = detect_markers(&coarse_img, dict)?
         .into_iter()
         .map(|m| {
-            let c = crate::corners::refine_corners(
-                &lum,
-                &m.corners.map(|c| Vec2::new(c[0], c[1])),
-                cells,
-            );
+            let c = crate::corners::refine_corners(&lum, &m.corners.map(to_ms), cells);
             MarkerObservation {
                 id: m.id,
                 corners: c.map(|p| Vec2::new((p.x + 0.5) / ms - 0.5, (p.y + 0.5) / ms - 0.5)),
@@ -112,28 +118,37 @@ fn process(
         )?,
         cs,
     );
-    let fine_img = if fs < 1.0 {
-        std::borrow::Cow::Owned(downscaled(img, fs)?)
-    } else {
-        std::borrow::Cow::Borrowed(img)
-    };
     let (fine, grey) = match cfg.fine_method {
-        FineMethod::Sift => (
-            unscale(
-                sift(
-                    &fine_img,
-                    cfg.fine_features,
-                    cfg.sift_contrast,
-                    exclude(fine_img.width, fine_img.height),
-                )?,
-                fs,
-            ),
-            None,
-        ),
-        FineMethod::Patch => (
-            Features::default(),
-            Some(Arc::new(Grey::from_image(&fine_img))),
-        ),
+        FineMethod::Sift => {
+            let fine_img = downscaled(&luma, fs)?;
+            (
+                unscale(
+                    sift(
+                        &fine_img,
+                        cfg.fine_features,
+                        cfg.sift_contrast,
+                        exclude(fine_img.width, fine_img.height),
+                    )?,
+                    fs,
+                ),
+                None,
+            )
+        }
+        FineMethod::Patch => {
+            let fine_img = if fs < 1.0 {
+                downscaled(&luma, fs)?
+            } else {
+                luma
+            };
+            (
+                Features::default(),
+                Some(Arc::new(Grey {
+                    width: fine_img.width,
+                    height: fine_img.height,
+                    data: fine_img.data,
+                })),
+            )
+        }
     };
     let ts = (480.0 / long).min(1.0);
     let thumb = downscaled(img, ts)?;

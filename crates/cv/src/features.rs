@@ -37,8 +37,11 @@ impl Features {
     }
 }
 
-/// Grey 8-bit `Mat` of an RGB image.
-fn grey_mat(img: &ImageU8) -> Result<Mat, CvError> {
+/// Grey 8-bit `Mat` of an RGB or single-channel image.
+pub(crate) fn grey_mat(img: &ImageU8) -> Result<Mat, CvError> {
+    if img.channels == 1 {
+        return crate::grey_to_mat(img);
+    }
     let bgr = rgb_to_mat(img)?;
     let mut grey = Mat::default();
     opencv::imgproc::cvt_color_def(&bgr, &mut grey, opencv::imgproc::COLOR_BGR2GRAY)
@@ -46,9 +49,14 @@ fn grey_mat(img: &ImageU8) -> Result<Mat, CvError> {
     Ok(grey)
 }
 
-/// Resize an RGB image by `scale` with area averaging (for downscaling).
+/// Resize an RGB or single-channel image by `scale` with area averaging (for
+/// downscaling).
 pub fn resize(img: &ImageU8, scale: f64) -> Result<ImageU8, CvError> {
-    let src = rgb_to_mat(img)?;
+    let src = if img.channels == 1 {
+        crate::grey_to_mat(img)?
+    } else {
+        rgb_to_mat(img)?
+    };
     let mut dst = Mat::default();
     let w = ((img.width as f64) * scale).round().max(1.0) as i32;
     let h = ((img.height as f64) * scale).round().max(1.0) as i32;
@@ -61,7 +69,11 @@ pub fn resize(img: &ImageU8, scale: f64) -> Result<ImageU8, CvError> {
         opencv::imgproc::INTER_AREA,
     )
     .ctx(|| "resize".into())?;
-    crate::mat_to_rgb(&dst)
+    if img.channels == 1 {
+        crate::mat_to_grey(&dst)
+    } else {
+        crate::mat_to_rgb(&dst)
+    }
 }
 
 /// `img` resized by `scale` when `scale < 1`, otherwise a copy of it.

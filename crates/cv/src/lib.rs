@@ -146,6 +146,47 @@ pub(crate) fn mat_to_rgb(mat: &Mat) -> Result<ImageU8, CvError> {
     Ok(out)
 }
 
+/// A single-channel 8-bit image as a `CV_8UC1` `Mat` (a copy).
+pub(crate) fn grey_to_mat(img: &ImageU8) -> Result<Mat, CvError> {
+    if img.channels != 1 {
+        return Err(CvError::Invalid {
+            what: "channel count".into(),
+            value: img.channels.to_string(),
+            expected: "1 (grey)".into(),
+        });
+    }
+    let rows = i32::try_from(img.height).map_err(|_| too_big(img))?;
+    let cols = i32::try_from(img.width).map_err(|_| too_big(img))?;
+    let mut mat = Mat::new_rows_cols_with_default(rows, cols, opencv::core::CV_8UC1, 0.into())
+        .ctx(|| "allocating image".into())?;
+    for r in 0..img.height {
+        mat.at_row_mut::<u8>(r as i32)
+            .ctx(|| "writing image row".into())?
+            .copy_from_slice(img.row(r));
+    }
+    Ok(mat)
+}
+
+/// A `CV_8UC1` `Mat` as a single-channel image.
+pub(crate) fn mat_to_grey(mat: &Mat) -> Result<ImageU8, CvError> {
+    if mat.typ() != opencv::core::CV_8UC1 {
+        return Err(CvError::Invalid {
+            what: "image type".into(),
+            value: mat.typ().to_string(),
+            expected: "8-bit, one channel".into(),
+        });
+    }
+    let (w, h) = (mat.cols() as usize, mat.rows() as usize);
+    let mut out = ImageU8::new(w, h, 1);
+    for r in 0..h {
+        out.data[r * w..(r + 1) * w].copy_from_slice(
+            mat.at_row::<u8>(r as i32)
+                .ctx(|| "reading image row".into())?,
+        );
+    }
+    Ok(out)
+}
+
 /// Read a photo (JPEG, PNG, ...) as 8-bit RGB, applying its EXIF orientation.
 pub fn read_image(path: &Path) -> Result<ImageU8, CvError> {
     let name = path.to_string_lossy();
