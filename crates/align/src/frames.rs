@@ -10,7 +10,10 @@ use svbrdf_core::geometry::Vec2;
 use svbrdf_core::image::ImageU8;
 use svbrdf_cv::aruco::{detect_markers, Dictionary};
 use svbrdf_cv::features::{downscaled, sift, Features};
-use svbrdf_cv::video::VideoReader;
+use svbrdf_cv::video::{luma_frame_of, LumaFrame, VideoReader};
+
+/// Long side of the thumbnails kept for the panorama, pixels.
+const THUMB_LONG: u32 = 480;
 
 use crate::blur::blur_metric;
 use crate::config::{AlignConfig, FineMethod};
@@ -58,24 +61,20 @@ fn unscale(mut f: Features, s: f64) -> Features {
 }
 
 fn process(
-    img: &ImageU8,
+    frame: LumaFrame,
     index: u64,
     fps: f64,
     cfg: &AlignConfig,
     dict: Dictionary,
 ) -> Result<FrameData, AlignError> {
-    let long = img.width.max(img.height) as f64;
+    let LumaFrame { luma, thumb } = frame;
+    let (width, height) = (luma.width, luma.height);
+    let long = width.max(height) as f64;
     let cs = (f64::from(cfg.coarse_long_side) / long).min(1.0);
     let fs = (f64::from(cfg.fine_long_side) / long).min(1.0);
-    // Everything but the thumbnail works on luminance: one conversion at full
-    // resolution, then area-averaged grey images (a third of the data of RGB).
-    let luma = Grey::from_image(img);
-    let luma = ImageU8 {
-        width: luma.width,
-        height: luma.height,
-        channels: 1,
-        data: luma.data,
-    };
+    // Everything but the thumbnail works on luminance (converted once, at full
+    // resolution, while decoding), with area-averaged grey images: a third of the data
+    // of RGB.
     let coarse_img = downscaled(&luma, cs)?;
     let grey: Vec<f32> = coarse_img
         .data
@@ -150,15 +149,13 @@ fn process(
             )
         }
     };
-    let ts = (480.0 / long).min(1.0);
-    let thumb = downscaled(img, ts)?;
     Ok(FrameData {
         index,
         stream: 0,
         file: None,
         time_s: index as f64 / fps.max(1e-9),
-        width: img.width as u32,
-        height: img.height as u32,
+        width: width as u32,
+        height: height as u32,
         blur,
         markers,
         coarse,
@@ -181,13 +178,14 @@ pub fn decode_frames(
     let step = u64::from(cfg.camera.frame_step);
     progress.stage("decode + features", info.frame_count.div_ceil(step));
     let batch_size = 2 * rayon::current_num_threads().max(1);
-    let (tx, rx) = std::sync::mpsc::sync_channel::<Result<(u64, ImageU8), AlignError>>(batch_size);
+    let (tx, rx) =
+        std::sync::mpsc::sync_channel::<Result<(u64, LumaFrame), AlignError>>(batch_size);
     let mut out = Vec::new();
     std::thread::scope(|scope| -> Result<(), AlignError> {
         scope.spawn(move || loop {
             let idx = reader.next_index();
             let frame = if idx % step == 0 {
-                reader.read().map_err(AlignError::from)
+                reader.read_luma(THUMB_LONG).map_err(AlignError::from)
             } else {
                 match reader.skip() {
                     Ok(true) => continue,
@@ -210,20 +208,21 @@ pub fn decode_frames(
         });
         // Owned here so that an early error drops it and unblocks the decoder thread.
         let rx = rx;
-        let mut batch: Vec<(u64, ImageU8)> = Vec::with_capacity(batch_size);
-        let flush =
-            |batch: &mut Vec<(u64, ImageU8)>, out: &mut Vec<FrameData>| -> Result<(), AlignError> {
-                let processed: Vec<Result<FrameData, AlignError>> = batch
-                    .par_iter()
-                    .map(|(i, img)| process(img, *i, info.fps, cfg, dict))
-                    .collect();
-                for p in processed {
-                    out.push(p?);
-                }
-                progress.advance(batch.len() as u64);
-                batch.clear();
-                Ok(())
-            };
+        let mut batch: Vec<(u64, LumaFrame)> = Vec::with_capacity(batch_size);
+        let flush = |batch: &mut Vec<(u64, LumaFrame)>,
+                     out: &mut Vec<FrameData>|
+         -> Result<(), AlignError> {
+            let n = batch.len() as u64;
+            let processed: Vec<Result<FrameData, AlignError>> = std::mem::take(batch)
+                .into_par_iter()
+                .map(|(i, f)| process(f, i, info.fps, cfg, dict))
+                .collect();
+            for p in processed {
+                out.push(p?);
+            }
+            progress.advance(n);
+            Ok(())
+        };
         for item in rx.iter() {
             batch.push(item?);
             if batch.len() == batch_size {
@@ -282,7 +281,9 @@ pub fn read_photos(
         .enumerate()
         .map(|(k, name)| {
             let img = svbrdf_cv::read_image(&dir.join(name))?;
-            let mut f = process(&img, k as u64, 1.0, cfg, dict)?;
+            let frame = luma_frame_of(&img, THUMB_LONG)?;
+            drop(img);
+            let mut f = process(frame, k as u64, 1.0, cfg, dict)?;
             f.file = Some(name.clone());
             progress.advance(1);
             Ok(f)
