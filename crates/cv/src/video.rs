@@ -93,12 +93,17 @@ impl VideoReader {
         Ok(reader)
     }
 
-    fn decode(&mut self) -> Result<Option<ImageU8>, CvError> {
+    /// Decode the next frame into `self.frame`; `false` at the end of the stream.
+    fn decode_mat(&mut self) -> Result<bool, CvError> {
         let ok = self
             .cap
             .read(&mut self.frame)
             .ctx(|| format!("decoding {}", self.path.display()))?;
-        if !ok || self.frame.empty() {
+        Ok(ok && !self.frame.empty())
+    }
+
+    fn decode(&mut self) -> Result<Option<ImageU8>, CvError> {
+        if !self.decode_mat()? {
             return Ok(None);
         }
         mat_to_rgb(&self.frame).map(Some)
@@ -150,11 +155,7 @@ impl VideoReader {
             self.next_index += 1;
             return luma_frame_of(&rgb, thumb_long).map(Some);
         }
-        let ok = self
-            .cap
-            .read(&mut self.frame)
-            .ctx(|| format!("decoding {}", self.path.display()))?;
-        if !ok || self.frame.empty() {
+        if !self.decode_mat()? {
             return Ok(None);
         }
         self.next_index += 1;
