@@ -18,6 +18,7 @@
 pub mod cluster;
 pub mod config;
 pub mod evaluate;
+pub mod fast;
 pub mod holdout;
 pub mod observations;
 pub mod output;
@@ -30,7 +31,7 @@ use std::time::Instant;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use svbrdf_core::brdf::BrdfParams;
+use svbrdf_core::brdf::{BrdfParams, ModelKind};
 use svbrdf_core::capture::RegisteredCapture;
 use svbrdf_core::plane::PlaneGrid;
 use svbrdf_core::progress::Progress;
@@ -358,6 +359,12 @@ fn fill_unobserved(grid: &PlaneGrid, cluster: &mut [u32], known: &[bool]) {
     }
 }
 
+thread_local! {
+    /// Per-thread scratch of the Ward fast paths (one pixel's observations).
+    pub(crate) static BATCH: std::cell::RefCell<fast::PixelBatch> =
+        std::cell::RefCell::new(fast::PixelBatch::default());
+}
+
 /// Per-pixel refinement of diffuse albedo and normal (our addition to the paper: its
 /// maps are constant within a cluster). Each pixel is fitted to its own raw
 /// observations, pulled towards its cluster's solution by a prior as strong as
@@ -372,6 +379,29 @@ fn refine(ctx: &Context, params: &mut [BrdfParams], covered: &[bool]) {
         .enumerate()
         .for_each(|(px, p)| {
             if !covered[px] {
+                return;
+            }
+            if ctx.model.kind() == ModelKind::Ward && !ctx.cfg.refine_specular {
+                let mut bounds = global;
+                let x0 = p.to_array();
+                for k in 0..2 {
+                    bounds.normal_lo[k] = (x0[8 + k] - delta).max(global.normal_lo[k]);
+                    bounds.normal_hi[k] = (x0[8 + k] + delta).min(global.normal_hi[k]);
+                }
+                BATCH.with_borrow_mut(|b| {
+                    b.gather(obs, px, 1);
+                    let q = fast::refine_pixel(
+                        b,
+                        p,
+                        ctx.intensity,
+                        &bounds,
+                        ctx.cfg.refine_prior,
+                        ctx.cfg.refine_iterations,
+                    );
+                    if q.is_physical() {
+                        *p = q;
+                    }
+                });
                 return;
             }
             let samples: Vec<Sample> = obs

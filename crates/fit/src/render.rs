@@ -4,7 +4,7 @@
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use svbrdf_core::brdf::{BrdfModel, BrdfParams, LightView, Prepared};
+use svbrdf_core::brdf::{BrdfModel, BrdfParams, LightView, ModelKind, Prepared};
 use svbrdf_core::geometry::Vec3;
 use svbrdf_core::image::ImageF32;
 use svbrdf_core::plane::PlaneGrid;
@@ -64,6 +64,25 @@ pub fn rerender_check(
                 let n = obs.count(px);
                 if n == 0 {
                     res.push(0.0);
+                    return (res, acc);
+                }
+                if model.kind() == ModelKind::Ward {
+                    let s = crate::BATCH.with_borrow_mut(|b| {
+                        b.gather(obs, px, 1);
+                        let mut e = Vec::new();
+                        b.errors(&params[px], intensity, &mut e);
+                        let mut s = 0.0;
+                        for i in 0..b.len() {
+                            let a = &mut acc[usize::from(b.frame[i])];
+                            let ei = f64::from(e[i]);
+                            s += ei;
+                            a.0 += ei;
+                            a.1 += (0..3).map(|k| f64::from(b.rgb[k][i])).sum::<f64>();
+                            a.2 += 1;
+                        }
+                        s
+                    });
+                    res.push((s / (3 * n) as f64).sqrt() as f32);
                     return (res, acc);
                 }
                 let prep = Prepared::new(params[px]);

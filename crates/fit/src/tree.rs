@@ -10,7 +10,7 @@ use std::collections::HashMap;
 use std::hash::{BuildHasherDefault, Hasher};
 
 use rayon::prelude::*;
-use svbrdf_core::brdf::{BrdfModel, BrdfParams, LightView, Prepared};
+use svbrdf_core::brdf::{BrdfModel, BrdfParams, LightView, ModelKind, Prepared};
 use svbrdf_core::geometry::Vec3;
 
 use crate::config::FitConfig;
@@ -152,6 +152,7 @@ pub fn pixel_errors(ctx: &Context, pixels: &[u32], params: &BrdfParams) -> (Vec<
     let p = Prepared::new(*params);
     let obs = ctx.obs;
     let cap = ctx.cfg.max_split_observations;
+    let ward = ctx.model.kind() == ModelKind::Ward;
     let per: Vec<(f64, usize)> = pixels
         .par_iter()
         .with_min_len(256)
@@ -160,6 +161,12 @@ pub fn pixel_errors(ctx: &Context, pixels: &[u32], params: &BrdfParams) -> (Vec<
             let mut s = 0.0;
             let r = obs.range(px);
             let step = r.len().div_ceil(cap).max(1);
+            if ward {
+                return crate::BATCH.with_borrow_mut(|b| {
+                    b.gather(obs, px, step);
+                    (b.sse(params, ctx.intensity), b.len())
+                });
+            }
             let mut n = 0;
             for o in r.step_by(step) {
                 n += 1;

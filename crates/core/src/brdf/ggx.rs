@@ -37,6 +37,10 @@ fn lambda(ax: f64, ay: f64, wt: f64, wb: f64, wn: f64) -> (f64, [f64; 5]) {
 }
 
 impl BrdfModel for Ggx {
+    fn kind(&self) -> super::ModelKind {
+        super::ModelKind::Ggx
+    }
+
     fn name(&self) -> &'static str {
         "ggx"
     }

@@ -11,6 +11,7 @@
 //! that needs trigonometry (the normal and tangent frame and its derivatives) is
 //! computed once per parameter set in [`Prepared`].
 
+pub mod batch;
 mod frame;
 mod ggx;
 mod ward;
@@ -202,6 +203,9 @@ pub struct RadianceGrad {
 pub trait BrdfModel: Sync + Send {
     /// Short name used in files and on the command line (`ward`, `ggx`).
     fn name(&self) -> &'static str;
+
+    /// Which model this is (fast paths exist for some).
+    fn kind(&self) -> ModelKind;
 
     /// The BRDF value per channel (1/sr) for unit directions.
     fn brdf(&self, p: &Prepared, light: Vec3, view: Vec3) -> [f64; 3];

@@ -43,6 +43,10 @@ fn dots(p: &Prepared, l: Vec3, v: Vec3) -> Option<Dots> {
 }
 
 impl BrdfModel for Ward {
+    fn kind(&self) -> super::ModelKind {
+        super::ModelKind::Ward
+    }
+
     fn name(&self) -> &'static str {
         "ward"
     }
