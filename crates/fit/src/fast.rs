@@ -5,10 +5,10 @@
 
 use nalgebra::{SMatrix, SVector};
 use svbrdf_core::brdf::batch::{shapes, shapes_grad, GeometryBatch, Shapes, WardF32, LANES};
-use svbrdf_core::brdf::{BrdfParams, Prepared};
+use svbrdf_core::brdf::{BrdfParams, Prepared, N_PARAMS};
 
 use crate::observations::{Observations, CLIPPED, RGB_SCALE};
-use crate::solver::Bounds;
+use crate::solver::{Bounds, Sample};
 
 /// One pixel's observations in structure-of-arrays form, padded to [`LANES`].
 #[derive(Debug, Clone, Default)]
@@ -108,16 +108,200 @@ impl PixelBatch {
     }
 }
 
+/// Squared residual of a prediction, zero for a censored channel predicted above its
+/// bound (`cen` is 1 for a clipped channel).
+#[inline(always)]
+fn r0_sq(r: f32, cen: f32) -> f32 {
+    let r = r - cen * r.max(0.0);
+    r * r
+}
+
 /// Sum with [`LANES`] partial sums, so that the loop vectorises.
 fn lane_sum(v: &[f32]) -> f64 {
-    let mut acc = [0f32; LANES];
+    let mut acc = [0f64; LANES];
     for chunk in v.chunks_exact(LANES) {
         for j in 0..LANES {
-            acc[j] += chunk[j];
+            acc[j] += f64::from(chunk[j]);
         }
     }
-    let tail: f32 = v.chunks_exact(LANES).remainder().iter().sum();
-    acc.iter().map(|a| f64::from(*a)).sum::<f64>() + f64::from(tail)
+    let tail: f64 = v.chunks_exact(LANES).remainder().iter().map(|e| f64::from(*e)).sum();
+    acc.iter().sum::<f64>() + tail
+}
+
+/// Binned samples (weighted, possibly censored) of a cluster in batch form, for the
+/// cluster fits' Levenberg-Marquardt iterations.
+#[derive(Debug, Clone, Default)]
+pub struct SampleBatch {
+    geom: GeometryBatch,
+    rgb: [Vec<f32>; 3],
+    censor: [Vec<f32>; 3],
+    weight: Vec<f32>,
+    shapes: Shapes,
+}
+
+type Mat10 = SMatrix<f64, N_PARAMS, N_PARAMS>;
+type Vec10 = SVector<f64, N_PARAMS>;
+
+impl SampleBatch {
+    /// From samples.
+    pub fn new(samples: &[Sample]) -> Self {
+        let mut b = Self::default();
+        b.geom.begin(samples.len());
+        let padded = b.geom.padded_len();
+        for a in b.rgb.iter_mut().chain(b.censor.iter_mut()) {
+            a.resize(padded, 0.0);
+        }
+        b.weight.resize(padded, 0.0);
+        for (i, o) in samples.iter().enumerate() {
+            // Unit directions and r^2: offsets of length r along the light, any
+            // length along the view.
+            let r = o.lv.light_dist2.sqrt();
+            let l = o.lv.light * r;
+            b.geom.set(
+                i,
+                [l.x as f32, l.y as f32, l.z as f32],
+                [o.lv.view.x as f32, o.lv.view.y as f32, o.lv.view.z as f32],
+            );
+            for k in 0..3 {
+                b.rgb[k][i] = o.rgb[k] as f32;
+                b.censor[k][i] = if o.clipped[k] { 1.0 } else { 0.0 };
+            }
+            b.weight[i] = o.weight as f32;
+        }
+        b.geom.finish();
+        b
+    }
+
+    /// Weighted sum of squared errors.
+    pub fn cost(&mut self, p: &BrdfParams, intensity: [f64; 3]) -> f64 {
+        let w = WardF32::new(&Prepared::new(*p));
+        shapes(&w, &self.geom, &mut self.shapes);
+        let n = self.geom.padded_len();
+        // Costs are summed in f64: the solver compares them to 1e-4 relative over tens
+        // of thousands of samples.
+        let mut acc = [0f64; LANES];
+        for c in 0..3 {
+            let (kd, ks) = (
+                (p.rho_d[c] * intensity[c]) as f32,
+                (p.rho_s[c] * intensity[c]) as f32,
+            );
+            let (d, s, y, cen, wt) = (
+                &self.shapes.d[..n],
+                &self.shapes.s[..n],
+                &self.rgb[c][..n],
+                &self.censor[c][..n],
+                &self.weight[..n],
+            );
+            for base in (0..n).step_by(LANES) {
+                for j in 0..LANES {
+                    let i = base + j;
+                    let r = kd * d[i] + ks * s[i] - y[i];
+                    let r = r - cen[i] * r.max(0.0);
+                    acc[j] += f64::from(wt[i] * r * r);
+                }
+            }
+        }
+        acc.iter().sum()
+    }
+
+    /// Cost, `J^T W J` and `J^T W r` over all ten parameters (with `isotropic`,
+    /// `alpha_y` follows `alpha_x`: its derivative is added to index 6 and index 7 is
+    /// left empty), as [`crate::solver::Problem`]'s generic path computes them.
+    pub fn linearise(
+        &mut self,
+        p: &BrdfParams,
+        intensity: [f64; 3],
+        isotropic: bool,
+    ) -> (f64, Mat10, Vec10) {
+        let w = WardF32::new(&Prepared::new(*p));
+        shapes_grad(&w, &self.geom, &mut self.shapes);
+        let n = self.geom.padded_len();
+        let sh = &self.shapes;
+        let mut a = Mat10::zeros();
+        let mut g = Vec10::zeros();
+        let mut cost = 0.0;
+        for c in 0..3 {
+            let ic = intensity[c] as f32;
+            let (rd, rs) = (p.rho_d[c] as f32, p.rho_s[c] as f32);
+            // Lane sums: cost, the 21 products of the upper triangle of the 6x6 block
+            // (rho_d, rho_s, alpha_x, alpha_y, theta_x, theta_y), then 6 of J r.
+            let mut acc = [[0f32; LANES]; 28];
+            let mut acc_cost = [0f64; LANES];
+            let (d, s, y, cen, wt) = (
+                &sh.d[..n],
+                &sh.s[..n],
+                &self.rgb[c][..n],
+                &self.censor[c][..n],
+                &self.weight[..n],
+            );
+            let (dd0, dd1) = (&sh.dd[0][..n], &sh.dd[1][..n]);
+            let (r0, r1, r2, r3) = (&sh.rel[0][..n], &sh.rel[1][..n], &sh.rel[2][..n], &sh.rel[3][..n]);
+            for base in (0..n).step_by(LANES) {
+                for l in 0..LANES {
+                    let i = base + l;
+                    let r = ic * (rd * d[i] + rs * s[i]) - y[i];
+                    let live = 1.0 - cen[i] * f32::from(u8::from(r > 0.0));
+                    let sw = wt[i].sqrt() * live;
+                    let r = r * sw;
+                    let ss = ic * rs * s[i] * sw;
+                    let jv = [
+                        ic * d[i] * sw,
+                        ic * s[i] * sw,
+                        ss * r0[i],
+                        ss * r1[i],
+                        ic * rd * dd0[i] * sw + ss * r2[i],
+                        ic * rd * dd1[i] * sw + ss * r3[i],
+                    ];
+                    acc_cost[l] += f64::from(wt[i] * r0_sq(ic * (rd * d[i] + rs * s[i]) - y[i], cen[i]));
+                    let mut m = 1;
+                    for x in 0..6 {
+                        for y2 in x..6 {
+                            acc[m][l] += jv[x] * jv[y2];
+                            m += 1;
+                        }
+                    }
+                    for x in 0..6 {
+                        acc[22 + x][l] += jv[x] * r;
+                    }
+                }
+            }
+            let t: [f64; 28] = acc.map(|v| v.iter().map(|e| f64::from(*e)).sum());
+            cost += acc_cost.iter().sum::<f64>();
+            let mut block = [[0.0; 6]; 6];
+            let mut m = 1;
+            for x in 0..6 {
+                for y2 in x..6 {
+                    block[x][y2] = t[m];
+                    block[y2][x] = t[m];
+                    m += 1;
+                }
+            }
+            let mut grad: [f64; 6] = std::array::from_fn(|x| t[22 + x]);
+            if isotropic {
+                // d/d alpha = d/d alpha_x + d/d alpha_y.
+                for x in 0..6 {
+                    block[x][2] += block[x][3];
+                }
+                for y2 in 0..6 {
+                    block[2][y2] += block[3][y2];
+                }
+                grad[2] += grad[3];
+                for x in 0..6 {
+                    block[x][3] = 0.0;
+                    block[3][x] = 0.0;
+                }
+                grad[3] = 0.0;
+            }
+            let idx = [c, 3 + c, 6, 7, 8, 9];
+            for x in 0..6 {
+                g[idx[x]] += grad[x];
+                for y2 in 0..6 {
+                    a[(idx[x], idx[y2])] += block[x][y2];
+                }
+            }
+        }
+        (cost, a, g)
+    }
 }
 
 type Mat5 = SMatrix<f64, 5, 5>;
@@ -139,6 +323,7 @@ fn linearise(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, M
         // Lane-wise partial sums: cost, J_d^2, J_d J_t0, J_d J_t1, J_t0^2, J_t0 J_t1,
         // J_t1^2, J_d r, J_t0 r, J_t1 r.
         let mut acc = [[0f32; LANES]; 10];
+        let mut acc_cost = [0f64; LANES];
         let (d, s, y, cen) = (&sh.d[..n], &sh.s[..n], &b.rgb[c][..n], &b.censor[c][..n]);
         let (dd0, dd1, r2, r3) = (&sh.dd[0][..n], &sh.dd[1][..n], &sh.rel[2][..n], &sh.rel[3][..n]);
         for base in (0..n).step_by(LANES) {
@@ -152,7 +337,7 @@ fn linearise(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, M
                 let jd = ic * d[i] * live;
                 let j0 = ic * (rd * dd0[i] + rs * s[i] * r2[i]) * live;
                 let j1 = ic * (rd * dd1[i] + rs * s[i] * r3[i]) * live;
-                acc[0][j] += r * r;
+                acc_cost[j] += f64::from(r * r);
                 acc[1][j] += jd * jd;
                 acc[2][j] += jd * j0;
                 acc[3][j] += jd * j1;
@@ -165,7 +350,7 @@ fn linearise(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, M
             }
         }
         let t: [f64; 10] = acc.map(|l| l.iter().map(|v| f64::from(*v)).sum());
-        cost += t[0];
+        cost += acc_cost.iter().sum::<f64>();
         a[(c, c)] += t[1];
         a[(c, 3)] += t[2];
         a[(3, c)] += t[2];

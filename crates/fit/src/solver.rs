@@ -12,7 +12,9 @@
 use nalgebra::{SMatrix, SVector};
 
 use crate::observations::residual;
-use svbrdf_core::brdf::{BrdfModel, BrdfParams, LightView, Prepared, N_PARAMS};
+use svbrdf_core::brdf::{BrdfModel, BrdfParams, LightView, ModelKind, Prepared, N_PARAMS};
+
+use crate::fast::SampleBatch;
 
 type Mat = SMatrix<f64, N_PARAMS, N_PARAMS>;
 type Vector = SVector<f64, N_PARAMS>;
@@ -295,7 +297,23 @@ impl Problem<'_> {
             }
             (c, a, g)
         };
-        let lin = |x: &[f64; N_PARAMS]| add_prior(x, self.linearise(x, fr));
+        // Ward takes the f32 batch path (same figures to about 1e-5 relative).
+        let batch = (self.model.kind() == ModelKind::Ward)
+            .then(|| std::cell::RefCell::new(SampleBatch::new(self.samples)));
+        let data_lin = |x: &[f64; N_PARAMS]| match &batch {
+            Some(b) => {
+                b.borrow_mut()
+                    .linearise(&BrdfParams::from_array(x), self.intensity, fr.isotropic)
+            }
+            None => self.linearise(x, fr),
+        };
+        let eval_cost = |x: &[f64; N_PARAMS]| match &batch {
+            Some(b) => b
+                .borrow_mut()
+                .cost(&BrdfParams::from_array(x), self.intensity),
+            None => self.cost(x),
+        };
+        let lin = |x: &[f64; N_PARAMS]| add_prior(x, data_lin(x));
         let (mut data_cost, mut jtj, mut jtr) = match first {
             Some(f) => add_prior(&x, f),
             None => lin(&x),
@@ -353,7 +371,7 @@ impl Problem<'_> {
                 trial[k] += step[k];
             }
             self.project(&mut trial, fr);
-            let new_data = self.cost(&trial);
+            let new_data = eval_cost(&trial);
             let new_total = new_data + prior_cost(&trial);
             if new_total.is_finite() && new_total < total {
                 let rel = (total - new_total) / total.max(1e-300);
@@ -469,6 +487,49 @@ mod tests {
         assert!((f.alpha_x - t.alpha_x).abs() < 1e-3 && (f.alpha_y - t.alpha_y).abs() < 1e-3);
         assert!((f.normal_theta_x - t.normal_theta_x).abs() < 1e-3);
         assert!((f.normal_theta_y - t.normal_theta_y).abs() < 1e-3);
+    }
+
+    #[test]
+    fn ward_batch_path_matches_the_generic_linearisation() {
+        let t = truth();
+        let mut s = samples(&Ward, &t, 77, 5);
+        for (i, o) in s.iter_mut().enumerate() {
+            o.weight = 1.0 + (i % 4) as f64;
+            // Censor some channels, below and above the prediction.
+            if i % 9 == 0 {
+                o.clipped = [true, false, i % 2 == 0];
+                o.rgb[0] *= if i % 2 == 0 { 0.5 } else { 2.0 };
+            }
+        }
+        let prob = Problem {
+            model: &Ward,
+            samples: &s,
+            intensity: [300.0, 280.0, 310.0],
+            bounds: BOUNDS,
+            tolerance: 1e-9,
+        };
+        let x = BrdfParams {
+            rho_d: [0.3, 0.3, 0.15],
+            alpha_x: 0.2,
+            normal_theta_y: 0.02,
+            ..t
+        };
+        for fr in [Freedom::FULL, Freedom::ISOTROPIC_FLAT] {
+            let (c, a, g) = prob.linearise(&x.to_array(), &fr);
+            let (cb, ab, gb) = SampleBatch::new(&s).linearise(&x, prob.intensity, fr.isotropic);
+            assert!((c - cb).abs() <= 1e-4 * c, "{c} vs {cb}");
+            let close = |u: f64, v: f64, scale: f64| (u - v).abs() <= 1e-4 * scale + 1e-12;
+            let amax = a.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let gmax = g.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for i in 0..N_PARAMS {
+                assert!(close(g[i], gb[i], gmax), "grad {i}: {} vs {}", g[i], gb[i]);
+                for j in 0..N_PARAMS {
+                    assert!(close(a[(i, j)], ab[(i, j)], amax), "({i},{j})");
+                }
+            }
+            let cost = SampleBatch::new(&s).cost(&x, prob.intensity);
+            assert!((cost - prob.cost(&x.to_array())).abs() <= 1e-4 * cost);
+        }
     }
 
     #[test]

@@ -89,25 +89,6 @@ impl GeometryBatch {
         }
     }
 
-    /// Add an observation after the others (then [`finish`](Self::finish)); slower
-    /// than [`begin`](Self::begin) and [`set`](Self::set).
-    pub fn push_offsets(&mut self, to_light: [f32; 3], to_camera: [f32; 3]) {
-        let n = self.len;
-        let saved: Vec<[[f32; 3]; 2]> = (0..n)
-            .map(|i| {
-                [
-                    [self.l[0][i], self.l[1][i], self.l[2][i]],
-                    [self.v[0][i], self.v[1][i], self.v[2][i]],
-                ]
-            })
-            .collect();
-        self.begin(n + 1);
-        for (i, [l, v]) in saved.into_iter().enumerate() {
-            self.set(i, l, v);
-        }
-        self.set(n, to_light, to_camera);
-    }
-
     /// Normalise the offsets set since [`begin`](Self::begin).
     pub fn finish(&mut self) {
         let n = self.len;
