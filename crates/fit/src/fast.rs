@@ -124,7 +124,12 @@ fn lane_sum(v: &[f32]) -> f64 {
             acc[j] += f64::from(chunk[j]);
         }
     }
-    let tail: f64 = v.chunks_exact(LANES).remainder().iter().map(|e| f64::from(*e)).sum();
+    let tail: f64 = v
+        .chunks_exact(LANES)
+        .remainder()
+        .iter()
+        .map(|e| f64::from(*e))
+        .sum();
     acc.iter().sum::<f64>() + tail
 }
 
@@ -235,7 +240,12 @@ impl SampleBatch {
                 &self.weight[..n],
             );
             let (dd0, dd1) = (&sh.dd[0][..n], &sh.dd[1][..n]);
-            let (r0, r1, r2, r3) = (&sh.rel[0][..n], &sh.rel[1][..n], &sh.rel[2][..n], &sh.rel[3][..n]);
+            let (r0, r1, r2, r3) = (
+                &sh.rel[0][..n],
+                &sh.rel[1][..n],
+                &sh.rel[2][..n],
+                &sh.rel[3][..n],
+            );
             for base in (0..n).step_by(LANES) {
                 for l in 0..LANES {
                     let i = base + l;
@@ -252,7 +262,8 @@ impl SampleBatch {
                         ic * rd * dd0[i] * sw + ss * r2[i],
                         ic * rd * dd1[i] * sw + ss * r3[i],
                     ];
-                    acc_cost[l] += f64::from(wt[i] * r0_sq(ic * (rd * d[i] + rs * s[i]) - y[i], cen[i]));
+                    acc_cost[l] +=
+                        f64::from(wt[i] * r0_sq(ic * (rd * d[i] + rs * s[i]) - y[i], cen[i]));
                     let mut m = 1;
                     for x in 0..6 {
                         for y2 in x..6 {
@@ -325,7 +336,12 @@ fn linearise(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, M
         let mut acc = [[0f32; LANES]; 10];
         let mut acc_cost = [0f64; LANES];
         let (d, s, y, cen) = (&sh.d[..n], &sh.s[..n], &b.rgb[c][..n], &b.censor[c][..n]);
-        let (dd0, dd1, r2, r3) = (&sh.dd[0][..n], &sh.dd[1][..n], &sh.rel[2][..n], &sh.rel[3][..n]);
+        let (dd0, dd1, r2, r3) = (
+            &sh.dd[0][..n],
+            &sh.dd[1][..n],
+            &sh.rel[2][..n],
+            &sh.rel[3][..n],
+        );
         for base in (0..n).step_by(LANES) {
             for j in 0..LANES {
                 let i = base + j;

@@ -192,8 +192,7 @@ pub fn exp_neg(x: f32) -> f32 {
     const MAGIC: f32 = 12_582_912.0; // 1.5 * 2^23
     let nf = (x * std::f32::consts::LOG2_E + MAGIC) - MAGIC;
     let r = x - nf * 0.693_359_4 + nf * 2.121_944_4e-4;
-    let p = ((((1.987_569_1e-4 * r + 1.398_199_9e-3) * r + 8.333_452e-3) * r + 4.166_579_6e-2)
-        * r
+    let p = ((((1.987_569_1e-4 * r + 1.398_199_9e-3) * r + 8.333_452e-3) * r + 4.166_579_6e-2) * r
         + 1.666_666_5e-1)
         * r
         + 5.000_000_1e-1;
@@ -215,7 +214,13 @@ pub fn shapes(w: &WardF32, g: &GeometryBatch, out: &mut Shapes) {
     let [lx, ly, lz] = &g.l;
     let [vx, vy, vz] = &g.v;
     let (lx, ly, lz, vx, vy, vz, ir) = (
-        &lx[..n], &ly[..n], &lz[..n], &vx[..n], &vy[..n], &vz[..n], &g.inv_r2[..n],
+        &lx[..n],
+        &ly[..n],
+        &lz[..n],
+        &vx[..n],
+        &vy[..n],
+        &vz[..n],
+        &g.inv_r2[..n],
     );
     let (d, s) = (&mut out.d[..n], &mut out.s[..n]);
     for i in 0..n {
@@ -245,7 +250,13 @@ pub fn shapes_grad(w: &WardF32, g: &GeometryBatch, out: &mut Shapes) {
     let [lx, ly, lz] = &g.l;
     let [vx, vy, vz] = &g.v;
     let (lx, ly, lz, vx, vy, vz, ir) = (
-        &lx[..n], &ly[..n], &lz[..n], &vx[..n], &vy[..n], &vz[..n], &g.inv_r2[..n],
+        &lx[..n],
+        &ly[..n],
+        &lz[..n],
+        &vx[..n],
+        &vy[..n],
+        &vz[..n],
+        &g.inv_r2[..n],
     );
     let Shapes { d, s, dd, rel } = out;
     let (d, s) = (&mut d[..n], &mut s[..n]);
@@ -275,17 +286,29 @@ pub fn shapes_grad(w: &WardF32, g: &GeometryBatch, out: &mut Shapes) {
         s[i] = if valid { sv } else { 0.0 };
         // Invalid lanes (padding: h = 0) would give 0/0; their S is 0, but 0 * NaN is
         // not, so every derivative is masked too.
-        r0[i] = if valid { 2.0 * ht * ht * iax2 * iax * ihn2 - iax } else { 0.0 };
-        r1[i] = if valid { 2.0 * hb * hb * iay2 * iay * ihn2 - iay } else { 0.0 };
+        r0[i] = if valid {
+            2.0 * ht * ht * iax2 * iax * ihn2 - iax
+        } else {
+            0.0
+        };
+        r1[i] = if valid {
+            2.0 * hb * hb * iay2 * iay * ihn2 - iay
+        } else {
+            0.0
+        };
         for k in 0..2 {
             let dhn = dot(w.dn[k], hx, hy, hz);
             let dht = dot(w.dt[k], hx, hy, hz);
             let dhb = dot(w.db[k], hx, hy, hz);
             let dci = dot(w.dn[k], l[0], l[1], l[2]);
             let dcr = dot(w.dn[k], v[0], v[1], v[2]);
-            let de = -2.0 * (ht * dht * iax2 + hb * dhb * iay2) * ihn2
-                + 2.0 * quad * dhn * ihn2 / hn;
-            let rk = if valid { de + 0.5 * dci * icis - 0.5 * dcr * icrs } else { 0.0 };
+            let de =
+                -2.0 * (ht * dht * iax2 + hb * dhb * iay2) * ihn2 + 2.0 * quad * dhn * ihn2 / hn;
+            let rk = if valid {
+                de + 0.5 * dci * icis - 0.5 * dcr * icrs
+            } else {
+                0.0
+            };
             let ddk = if valid { dci * ir[i] * INV_PI } else { 0.0 };
             if k == 0 {
                 r2[i] = rk;
@@ -317,7 +340,11 @@ mod tests {
         }
         // One observation from below the surface: zero.
         let below = Vec3::new(20.0, 0.0, -0.5);
-        lvs.push(LightView::from_points(surf, below, Vec3::new(0.0, 0.0, 10.0)));
+        lvs.push(LightView::from_points(
+            surf,
+            below,
+            Vec3::new(0.0, 0.0, 10.0),
+        ));
         g.set(37, f3(below - surf), [-0.3, 0.2, 10.0]);
         g.finish();
         (lvs, g)
@@ -365,11 +392,17 @@ mod tests {
                 for k in 0..2 {
                     let got = params.rho_s[c] * f64::from(sg.s[i] * sg.rel[k][i]);
                     let w = want.d_shared[k][c];
-                    assert!((got - w).abs() <= 1e-4 * w.abs() + 1e-8, "alpha {k} {got} vs {w}");
+                    assert!(
+                        (got - w).abs() <= 1e-4 * w.abs() + 1e-8,
+                        "alpha {k} {got} vs {w}"
+                    );
                     let got = params.rho_d[c] * f64::from(sg.dd[k][i])
                         + params.rho_s[c] * f64::from(sg.s[i] * sg.rel[2 + k][i]);
                     let w = want.d_shared[2 + k][c];
-                    assert!((got - w).abs() <= 1e-4 * w.abs() + 1e-8, "normal {k} {got} vs {w}");
+                    assert!(
+                        (got - w).abs() <= 1e-4 * w.abs() + 1e-8,
+                        "normal {k} {got} vs {w}"
+                    );
                 }
             }
         }
