@@ -182,7 +182,7 @@ struct AlignArgs {
     #[arg(long)]
     all_pairs: bool,
     /// Fine-match each frame with at most this many of its strongest coarse connections
-    /// (the time chain is always kept); default 6.
+    /// (the time chain is always kept); default 8.
     #[arg(long)]
     max_pairs_per_frame: Option<usize>,
     #[command(flatten)]
