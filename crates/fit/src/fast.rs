@@ -8,7 +8,7 @@ use svbrdf_core::brdf::batch::{shapes, shapes_grad, GeometryBatch, Shapes, WardF
 use svbrdf_core::brdf::{BrdfParams, Prepared, N_PARAMS};
 
 use crate::observations::{Observations, CLIPPED, RGB_SCALE};
-use crate::solver::{Bounds, Sample};
+use crate::solver::{damped_step, Bounds, Sample};
 
 /// One pixel's observations in structure-of-arrays form, padded to [`LANES`].
 #[derive(Debug, Clone, Default)]
@@ -445,28 +445,17 @@ pub fn refine_pixel(
             a[(k, k)] += weight[k];
             rhs[k] -= weight[k] * (x[k] - centre[k]);
         }
-        for k in 0..5 {
+        let pressed: [bool; 5] = std::array::from_fn(|k| {
             let grad = -rhs[k];
-            let pressed = (x[k] <= lo[k] && grad > 0.0) || (x[k] >= hi[k] && grad < 0.0);
-            if pressed {
-                for j in 0..5 {
-                    a[(k, j)] = 0.0;
-                    a[(j, k)] = 0.0;
-                }
-                a[(k, k)] = 1.0;
-                rhs[k] = 0.0;
-            } else {
-                a[(k, k)] += lambda * a[(k, k)].max(1e-12);
-            }
-        }
-        let Some(chol) = a.cholesky() else {
+            (x[k] <= lo[k] && grad > 0.0) || (x[k] >= hi[k] && grad < 0.0)
+        });
+        let Some(step) = damped_step(a, rhs, &pressed, lambda) else {
             lambda *= 10.0;
             if lambda > 1e10 {
                 break;
             }
             continue;
         };
-        let step = chol.solve(&rhs);
         let mut trial = x;
         for k in 0..5 {
             trial[k] += step[k];

@@ -110,6 +110,31 @@ pub struct Prior {
     pub weight: [f64; N_PARAMS],
 }
 
+/// One damped Gauss-Newton step of `a x = rhs` (`rhs` is minus the gradient):
+/// parameters marked `frozen` (fixed, or pressed against a bound by the gradient) get no
+/// step, the others Marquardt's damping `lambda * a_kk`. `None` when the damped matrix
+/// is not positive definite (raise `lambda`).
+pub fn damped_step<const N: usize>(
+    mut a: SMatrix<f64, N, N>,
+    mut rhs: SVector<f64, N>,
+    frozen: &[bool; N],
+    lambda: f64,
+) -> Option<SVector<f64, N>> {
+    for k in 0..N {
+        if frozen[k] {
+            for j in 0..N {
+                a[(k, j)] = 0.0;
+                a[(j, k)] = 0.0;
+            }
+            a[(k, k)] = 1.0;
+            rhs[k] = 0.0;
+        } else {
+            a[(k, k)] += lambda * a[(k, k)].max(1e-12);
+        }
+    }
+    a.cholesky().map(|c| c.solve(&rhs))
+}
+
 /// Outcome of one fit.
 #[derive(Debug, Clone, Copy)]
 pub struct Solution {
@@ -343,21 +368,7 @@ impl Problem<'_> {
                     || (at_low && g > 0.0)
                     || (at_high && g < 0.0);
             }
-            let mut a = jtj;
-            let mut rhs = -jtr;
-            for k in 0..N_PARAMS {
-                if active[k] {
-                    for j in 0..N_PARAMS {
-                        a[(k, j)] = 0.0;
-                        a[(j, k)] = 0.0;
-                    }
-                    a[(k, k)] = 1.0;
-                    rhs[k] = 0.0;
-                } else {
-                    a[(k, k)] += lambda * a[(k, k)].max(1e-12);
-                }
-            }
-            let Some(chol) = a.cholesky() else {
+            let Some(step) = damped_step(jtj, -jtr, &active, lambda) else {
                 lambda *= 10.0;
                 if lambda > 1e10 {
                     converged = true;
@@ -365,7 +376,7 @@ impl Problem<'_> {
                 }
                 continue;
             };
-            let step = chol.solve(&rhs);
+
             let mut trial = x;
             for k in 0..N_PARAMS {
                 trial[k] += step[k];

@@ -53,6 +53,20 @@ impl GeometryBatch {
         self.len == 0
     }
 
+    /// The seven columns (light x, y, z, view x, y, z, `1 / r^2`), padded length.
+    pub fn columns(&self) -> [&[f32]; 7] {
+        let n = self.padded_len();
+        [
+            &self.l[0][..n],
+            &self.l[1][..n],
+            &self.l[2][..n],
+            &self.v[0][..n],
+            &self.v[1][..n],
+            &self.v[2][..n],
+            &self.inv_r2[..n],
+        ]
+    }
+
     /// Length with padding.
     pub fn padded_len(&self) -> usize {
         self.inv_r2.len()
@@ -211,17 +225,7 @@ pub fn shapes(w: &WardF32, g: &GeometryBatch, out: &mut Shapes) {
     let n = g.padded_len();
     out.resize(n, false);
     let (iax2, iay2) = (1.0 / (w.ax * w.ax), 1.0 / (w.ay * w.ay));
-    let [lx, ly, lz] = &g.l;
-    let [vx, vy, vz] = &g.v;
-    let (lx, ly, lz, vx, vy, vz, ir) = (
-        &lx[..n],
-        &ly[..n],
-        &lz[..n],
-        &vx[..n],
-        &vy[..n],
-        &vz[..n],
-        &g.inv_r2[..n],
-    );
+    let [lx, ly, lz, vx, vy, vz, ir] = g.columns();
     let (d, s) = (&mut out.d[..n], &mut out.s[..n]);
     for i in 0..n {
         let ci = dot(w.n, lx[i], ly[i], lz[i]);
@@ -247,17 +251,7 @@ pub fn shapes_grad(w: &WardF32, g: &GeometryBatch, out: &mut Shapes) {
     out.resize(n, true);
     let (iax2, iay2) = (1.0 / (w.ax * w.ax), 1.0 / (w.ay * w.ay));
     let (iax, iay) = (1.0 / w.ax, 1.0 / w.ay);
-    let [lx, ly, lz] = &g.l;
-    let [vx, vy, vz] = &g.v;
-    let (lx, ly, lz, vx, vy, vz, ir) = (
-        &lx[..n],
-        &ly[..n],
-        &lz[..n],
-        &vx[..n],
-        &vy[..n],
-        &vz[..n],
-        &g.inv_r2[..n],
-    );
+    let [lx, ly, lz, vx, vy, vz, ir] = g.columns();
     let Shapes { d, s, dd, rel } = out;
     let (d, s) = (&mut d[..n], &mut s[..n]);
     let [dd0, dd1] = dd;
