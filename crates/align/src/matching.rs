@@ -872,7 +872,10 @@ pub fn register(
             .copied()
             .filter(|&(i, j)| i == f || j == f)
             .collect();
-        mine.sort_by_key(|&(i, j)| std::cmp::Reverse(strength(i, j)));
+        // Ties broken by the pair itself: `all` comes from a hash map, whose order
+        // differs from process to process, and a tie at the cut made two runs of the
+        // same video keep different pairs.
+        mine.sort_by_key(|&(i, j)| (std::cmp::Reverse(strength(i, j)), i, j));
         for (k, p) in mine.into_iter().enumerate() {
             if k < cfg.max_pairs_per_frame || p.1 == p.0 + 1 {
                 pairs.insert(p);
