@@ -431,7 +431,7 @@ pub fn refine_pixel(
     let mut x = to_x(init);
     project(&mut x);
     let centre = x;
-    let (mut data, mut jtj, mut jtr) = linearise(b, &of_x(&x), intensity);
+    let (data, mut jtj, mut jtr) = linearise(b, &of_x(&x), intensity);
     let n = b.len().max(1) as f64;
     let weight: [f64; 5] = std::array::from_fn(|k| strength * jtj[(k, k)].max(1e-12) / n);
     let prior_cost =
@@ -464,7 +464,7 @@ pub fn refine_pixel(
         let (d, a2, g2) = linearise(b, &of_x(&trial), intensity);
         let t = d + prior_cost(&trial);
         if t.is_finite() && t < total {
-            (x, data, jtj, jtr, total) = (trial, d, a2, g2, t);
+            (x, jtj, jtr, total) = (trial, a2, g2, t);
             lambda = (lambda / 3.0).max(1e-9);
         } else {
             lambda *= 4.0;
@@ -473,7 +473,6 @@ pub fn refine_pixel(
             }
         }
     }
-    let _ = data;
     of_x(&x)
 }
 

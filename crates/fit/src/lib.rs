@@ -373,6 +373,8 @@ fn refine(ctx: &Context, params: &mut [BrdfParams], covered: &[bool]) {
     let obs = ctx.obs;
     let global = ctx.bounds();
     let delta = ctx.cfg.refine_max_normal_change_deg.to_radians();
+    // The batch path refines diffuse albedo and normal only.
+    let ward_fast = ctx.model.kind() == ModelKind::Ward && !ctx.cfg.refine_specular;
     params
         .par_iter_mut()
         .with_min_len(256)
@@ -381,59 +383,44 @@ fn refine(ctx: &Context, params: &mut [BrdfParams], covered: &[bool]) {
             if !covered[px] {
                 return;
             }
-            if ctx.model.kind() == ModelKind::Ward && !ctx.cfg.refine_specular {
-                let mut bounds = global;
-                let x0 = p.to_array();
-                for k in 0..2 {
-                    bounds.normal_lo[k] = (x0[8 + k] - delta).max(global.normal_lo[k]);
-                    bounds.normal_hi[k] = (x0[8 + k] + delta).min(global.normal_hi[k]);
-                }
-                BATCH.with_borrow_mut(|b| {
-                    b.gather(obs, px, 1);
-                    let q = fast::refine_pixel(
-                        b,
-                        p,
-                        ctx.intensity,
-                        &bounds,
-                        ctx.cfg.refine_prior,
-                        ctx.cfg.refine_iterations,
-                    );
-                    if q.is_physical() {
-                        *p = q;
-                    }
-                });
-                return;
-            }
-            let samples: Vec<Sample> = obs
-                .range(px)
-                .map(|o| Sample {
-                    lv: obs.light_view(px, o),
-                    rgb: obs.color(o),
-                    weight: 1.0,
-                    clipped: obs.clipped(o),
-                })
-                .collect();
             let x0 = p.to_array();
             let mut bounds = global;
             for k in 0..2 {
                 bounds.normal_lo[k] = (x0[8 + k] - delta).max(global.normal_lo[k]);
                 bounds.normal_hi[k] = (x0[8 + k] + delta).min(global.normal_hi[k]);
             }
-            let prob = Problem {
-                model: ctx.model,
-                samples: &samples,
-                intensity: ctx.intensity,
-                bounds,
-                tolerance: ctx.cfg.tolerance,
-            };
-            let freedom = if ctx.cfg.refine_specular {
-                Freedom::ALBEDOS_AND_NORMAL
+            let (prior, iterations) = (ctx.cfg.refine_prior, ctx.cfg.refine_iterations);
+            let q = if ward_fast {
+                BATCH.with_borrow_mut(|b| {
+                    b.gather(obs, px, 1);
+                    fast::refine_pixel(b, p, ctx.intensity, &bounds, prior, iterations)
+                })
             } else {
-                Freedom::DIFFUSE_AND_NORMAL
+                let samples: Vec<Sample> = obs
+                    .range(px)
+                    .map(|o| Sample {
+                        lv: obs.light_view(px, o),
+                        rgb: obs.color(o),
+                        weight: 1.0,
+                        clipped: obs.clipped(o),
+                    })
+                    .collect();
+                let prob = Problem {
+                    model: ctx.model,
+                    samples: &samples,
+                    intensity: ctx.intensity,
+                    bounds,
+                    tolerance: ctx.cfg.tolerance,
+                };
+                let freedom = if ctx.cfg.refine_specular {
+                    Freedom::ALBEDOS_AND_NORMAL
+                } else {
+                    Freedom::DIFFUSE_AND_NORMAL
+                };
+                prob.solve_near(p, &freedom, prior, iterations).params
             };
-            let sol = prob.solve_near(p, &freedom, ctx.cfg.refine_prior, ctx.cfg.refine_iterations);
-            if sol.params.is_physical() {
-                *p = sol.params;
+            if q.is_physical() {
+                *p = q;
             }
         });
 }
