@@ -35,6 +35,11 @@ pub struct BenchArgs {
     /// Compare the maps of an existing `svbrdf fit` output folder with --truth.
     #[arg(long, requires = "truth")]
     fit_maps: Option<std::path::PathBuf>,
+    /// Score the true maps of --truth after a Gaussian blur of these widths (output
+    /// pixels, comma-separated): the accuracy that perfect maps at a slightly lower
+    /// resolution reach, one JSON line per width (`bench: resolution_floor`).
+    #[arg(long, requires = "truth", value_delimiter = ',')]
+    truth_blur: Vec<f64>,
     /// Settings file for --fit-capture (JSON subset of `FitConfig`).
     #[arg(long, requires = "fit_capture")]
     fit_config: Option<std::path::PathBuf>,
@@ -309,7 +314,10 @@ pub fn load_truth(synth_dir: &std::path::Path) -> Result<svbrdf_fit::evaluate::T
     Ok(svbrdf_fit::evaluate::Truth {
         grid: svbrdf_core::plane::PlaneGrid::new(truth.region, truth.maps.px_per_cm)?,
         diffuse: read(&truth.maps.diffuse)?,
+        specular: read(&truth.maps.specular)?,
+        roughness: read(&truth.maps.roughness)?,
         normal: read(&truth.maps.normal)?,
+        light_intensity: truth.light_intensity,
         mask: read(&truth.maps.mask)?,
         holdout,
     })
@@ -690,6 +698,23 @@ pub fn run(a: &BenchArgs) -> Result<()> {
             })
         );
         if a.no_brdf {
+            return Ok(());
+        }
+    }
+    if let (false, Some(t)) = (a.truth_blur.is_empty(), &a.truth) {
+        let truth = load_truth(t)?;
+        for &sigma in &a.truth_blur {
+            if !(0.0..=10.0).contains(&sigma) {
+                anyhow::bail!("--truth-blur {sigma}: expected widths in [0, 10] pixels");
+            }
+            let acc = svbrdf_fit::evaluate::blurred_truth(&truth, &svbrdf_core::brdf::Ward, sigma);
+            println!(
+                "{}",
+                json!({"bench": "resolution_floor", "truth": t.display().to_string(), "sigma_px": sigma, "accuracy": acc})
+            );
+        }
+        if a.no_brdf && a.fit_maps.is_none() && a.fit_capture.is_none() && a.align_capture.is_none()
+        {
             return Ok(());
         }
     }

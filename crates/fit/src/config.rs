@@ -95,6 +95,9 @@ pub struct FitConfig {
     /// paper-resolution patchwork a few pixels' specular spikes raise the held-out
     /// relighting error at full resolution (111% -> 134% mean); off by default.
     pub refine_specular: bool,
+    /// Robust per-pixel refinement: Cauchy weights with this scale, in units of the
+    /// pixel's robust residual spread at its cluster's solution (0: plain least squares).
+    pub refine_robust: f64,
     /// Gauss-Newton iterations of the per-pixel refinement.
     pub refine_iterations: usize,
     /// Frames shown in the re-rendering strip.
@@ -132,8 +135,9 @@ impl Default for FitConfig {
             alpha_max: 1.0,
             max_normal_deg: 45.0,
             refine: true,
-            refine_prior: 2.0,
+            refine_prior: 1.0,
             refine_iterations: 3,
+            refine_robust: 1.0,
             refine_specular: false,
             refine_max_normal_change_deg: 3.0,
             strip_frames: 4,
@@ -241,6 +245,9 @@ impl FitConfig {
                 &self.refine_max_normal_change_deg,
                 "degrees in [0, 90]",
             );
+        }
+        if !(self.refine_robust >= 0.0 && self.refine_robust.is_finite()) {
+            return bad("refinement robust scale", &self.refine_robust, ">= 0");
         }
         if !(self.refine_prior >= 0.0 && self.refine_prior.is_finite()) {
             return bad("refinement prior", &self.refine_prior, ">= 0");

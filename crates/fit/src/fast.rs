@@ -21,6 +21,9 @@ pub struct PixelBatch {
     pub censor: [Vec<f32>; 3],
     /// Frame number per observation (not padded).
     pub frame: Vec<u16>,
+    /// Square root of each observation's robust weight in the refinement (1 after
+    /// `gather`; padded).
+    pub robust: Vec<f32>,
     shapes: Shapes,
     scratch: Vec<f32>,
 }
@@ -38,6 +41,8 @@ impl PixelBatch {
             a.resize(padded, 0.0);
         }
         self.frame.clear();
+        self.robust.clear();
+        self.robust.resize(padded, 1.0);
         let s = obs.surface(px);
         let sat = obs.saturation as f32;
         let scale = (1.0 / RGB_SCALE) as f32;
@@ -318,6 +323,36 @@ impl SampleBatch {
 type Mat5 = SMatrix<f64, 5, 5>;
 type Vec5 = SVector<f64, 5>;
 
+/// Cauchy weights (as square roots, into `b.robust`) from the residuals under `p`,
+/// with the scale `k` times the robust spread of the pixel's residuals (1.4826 x their
+/// median) and at least [`ROBUST_FLOOR`]. The cluster's specular lobe cannot follow a
+/// pixel's own normal and roughness detail finer than the video resolves, so a few
+/// frames near the highlight disagree with it by far more than the noise; in plain
+/// least squares they pull the pixel's diffuse albedo and show as streaks and as the
+/// outlines of those frames' footprints.
+fn cauchy_weights(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3], k: f64) {
+    let mut e = std::mem::take(&mut b.scratch);
+    b.errors(p, intensity, &mut e);
+    let n = b.len();
+    let mut sorted: Vec<f32> = e[..n].iter().map(|v| v.sqrt()).collect();
+    if sorted.is_empty() {
+        b.scratch = e;
+        return;
+    }
+    let mid = sorted.len() / 2;
+    let med = *sorted.select_nth_unstable_by(mid, f32::total_cmp).1;
+    let c = (k as f32 * 1.4826 * med).max(ROBUST_FLOOR);
+    let inv_c2 = 1.0 / (c * c);
+    for (w, err2) in b.robust[..n].iter_mut().zip(&e[..n]) {
+        *w = (1.0 / (1.0 + err2 * inv_c2)).sqrt();
+    }
+    b.scratch = e;
+}
+
+/// Smallest Cauchy scale of the refinement, linear RGB residual: about the noise of
+/// a mid-grey 8-bit value.
+const ROBUST_FLOOR: f32 = 0.004;
+
 /// Cost, normal matrix and gradient of the refinement's five parameters (rho_d per
 /// channel, then the two normal angles) at `p`.
 fn linearise(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, Mat5, Vec5) {
@@ -336,6 +371,7 @@ fn linearise(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, M
         let mut acc = [[0f32; LANES]; 10];
         let mut acc_cost = [0f64; LANES];
         let (d, s, y, cen) = (&sh.d[..n], &sh.s[..n], &b.rgb[c][..n], &b.censor[c][..n]);
+        let rw = &b.robust[..n];
         let (dd0, dd1, r2, r3) = (
             &sh.dd[0][..n],
             &sh.dd[1][..n],
@@ -348,7 +384,7 @@ fn linearise(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, M
                 let r = ic * (rd * d[i] + rs * s[i]) - y[i];
                 // A censored channel predicted above its bound has no residual and
                 // no Jacobian row.
-                let live = 1.0 - cen[i] * f32::from(u8::from(r > 0.0));
+                let live = (1.0 - cen[i] * f32::from(u8::from(r > 0.0))) * rw[i];
                 let r = r * live;
                 let jd = ic * d[i] * live;
                 let j0 = ic * (rd * dd0[i] + rs * s[i] * r2[i]) * live;
@@ -395,6 +431,7 @@ pub fn refine_pixel(
     bounds: &Bounds,
     strength: f64,
     max_iterations: usize,
+    robust: f64,
 ) -> BrdfParams {
     let hi: [f64; 5] = [
         (1.0 - init.rho_s[0]).max(0.0),
@@ -431,6 +468,9 @@ pub fn refine_pixel(
     let mut x = to_x(init);
     project(&mut x);
     let centre = x;
+    if robust > 0.0 {
+        cauchy_weights(b, &of_x(&x), intensity, robust);
+    }
     let (data, mut jtj, mut jtr) = linearise(b, &of_x(&x), intensity);
     let n = b.len().max(1) as f64;
     let weight: [f64; 5] = std::array::from_fn(|k| strength * jtj[(k, k)].max(1e-12) / n);
@@ -591,22 +631,64 @@ mod tests {
             ..t
         };
         let bounds = Bounds::symmetric(0.02, 1.0, 0.2);
-        let p = refine_pixel(&mut b, &start, [200.0; 3], &bounds, 0.0, 30);
+        let p = refine_pixel(&mut b, &start, [200.0; 3], &bounds, 0.0, 30, 0.0);
         for c in 0..3 {
             assert!((p.rho_d[c] - t.rho_d[c]).abs() < 2e-3, "{p:?}");
         }
         assert!((p.normal_theta_x - t.normal_theta_x).abs() < 2e-3, "{p:?}");
         assert!((p.normal_theta_y - t.normal_theta_y).abs() < 2e-3, "{p:?}");
         // A strong prior holds the start; tight bounds hold the normal.
-        let held = refine_pixel(&mut b, &start, [200.0; 3], &bounds, 1e9, 30);
+        let held = refine_pixel(&mut b, &start, [200.0; 3], &bounds, 1e9, 30, 0.0);
         assert!((held.rho_d[0] - start.rho_d[0]).abs() < 1e-4, "{held:?}");
         let tight = Bounds {
             normal_lo: [-0.01; 2],
             normal_hi: [0.01; 2],
             ..bounds
         };
-        let p = refine_pixel(&mut b, &start, [200.0; 3], &tight, 0.0, 30);
+        let p = refine_pixel(&mut b, &start, [200.0; 3], &tight, 0.0, 30, 0.0);
         assert!(p.normal_theta_x <= 0.01 + 1e-12 && p.normal_theta_y >= -0.01 - 1e-12);
         assert!(p.is_physical());
+    }
+
+    #[test]
+    fn robust_refinement_discounts_observations_the_lobe_cannot_explain() {
+        let t = truth();
+        let mut obs = observed(&t, 200.0);
+        // Three of the pixel's thirty observations carry light the model's lobe does
+        // not predict (a neighbour's highlight blurred in, a glint).
+        let r = obs.range(4);
+        for o in r.step_by(10) {
+            for v in obs.rgb[o].iter_mut() {
+                if *v != CLIPPED {
+                    *v = (*v)
+                        .saturating_add((0.4 * RGB_SCALE) as u16)
+                        .min(CLIPPED - 1);
+                }
+            }
+        }
+        let mut b = PixelBatch::default();
+        let start = BrdfParams {
+            rho_d: [0.3, 0.25, 0.12],
+            ..t
+        };
+        let bounds = Bounds::symmetric(0.02, 1.0, 0.2);
+        let err = |p: &BrdfParams| {
+            (0..3)
+                .map(|c| (p.rho_d[c] - t.rho_d[c]).abs())
+                .fold(0.0, f64::max)
+        };
+        b.gather(&obs, 4, 1);
+        let plain = refine_pixel(&mut b, &start, [200.0; 3], &bounds, 0.0, 30, 0.0);
+        b.gather(&obs, 4, 1);
+        let robust = refine_pixel(&mut b, &start, [200.0; 3], &bounds, 0.0, 30, 1.0);
+        assert!(
+            err(&plain) > 0.02,
+            "outliers should bias least squares: {plain:?}"
+        );
+        assert!(err(&robust) < 0.25 * err(&plain), "{robust:?} vs {plain:?}");
+        assert!(robust.is_physical());
+        // Gathering again resets the weights.
+        b.gather(&obs, 4, 1);
+        assert!(b.robust.iter().all(|w| *w == 1.0));
     }
 }

@@ -393,7 +393,15 @@ fn refine(ctx: &Context, params: &mut [BrdfParams], covered: &[bool]) {
             let q = if ward_fast {
                 BATCH.with_borrow_mut(|b| {
                     b.gather(obs, px, 1);
-                    fast::refine_pixel(b, p, ctx.intensity, &bounds, prior, iterations)
+                    fast::refine_pixel(
+                        b,
+                        p,
+                        ctx.intensity,
+                        &bounds,
+                        prior,
+                        iterations,
+                        ctx.cfg.refine_robust,
+                    )
                 })
             } else {
                 let samples: Vec<Sample> = obs
