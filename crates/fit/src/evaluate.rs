@@ -209,24 +209,11 @@ pub fn blurred_truth(truth: &Truth, model: &dyn BrdfModel, sigma_px: f64) -> Acc
     );
     let params: Vec<BrdfParams> = (0..truth.grid.len())
         .map(|i| {
-            let px = |img: &ImageF32| {
-                let c = img.channels;
-                std::array::from_fn::<f64, 3, _>(|k| f64::from(img.data[c * i + k.min(c - 1)]))
-            };
-            let nv = px(&n);
-            let normal = Vec3::new(nv[0], nv[1], nv[2])
-                .try_normalize(1e-9)
-                .unwrap_or_else(Vec3::z);
-            let (tx, ty) = BrdfParams::angles_from_normal(normal);
-            let rv = px(&r);
-            BrdfParams {
-                rho_d: px(&d),
-                rho_s: px(&s),
-                alpha_x: rv[0].max(1e-3),
-                alpha_y: rv[1].max(1e-3),
-                normal_theta_x: tx,
-                normal_theta_y: ty,
-            }
+            let mut p = crate::output::params_from_maps([&d, &s, &r, &n], i);
+            // A roughness map may hold 0 where the blur reaches no material.
+            p.alpha_x = p.alpha_x.max(1e-3);
+            p.alpha_y = p.alpha_y.max(1e-3);
+            p
         })
         .collect();
     let i = truth.light_intensity;

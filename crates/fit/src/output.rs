@@ -349,10 +349,35 @@ pub struct LoadedMaps {
     pub params: Vec<svbrdf_core::brdf::BrdfParams>,
 }
 
-/// Read `fit.json` and the linear EXR maps of an output folder.
-pub fn read_maps(dir: &Path) -> Result<LoadedMaps, FitError> {
+/// The parameters of pixel `i` from the four maps as `fit` writes them: diffuse and
+/// specular albedo, roughness (alpha_x and alpha_y in the first two channels) and the
+/// unit normal (renormalised; the normal-offset angles are derived from it).
+pub fn params_from_maps(maps: [&ImageF32; 4], i: usize) -> svbrdf_core::brdf::BrdfParams {
     use svbrdf_core::brdf::BrdfParams;
     use svbrdf_core::geometry::Vec3;
+    let px = |img: &ImageF32| -> [f64; 3] {
+        let c = img.channels;
+        std::array::from_fn(|k| f64::from(img.data[c * i + k.min(c - 1)]))
+    };
+    let [d, s, r, n] = maps;
+    let nv = px(n);
+    let normal = Vec3::new(nv[0], nv[1], nv[2])
+        .try_normalize(1e-9)
+        .unwrap_or_else(Vec3::z);
+    let (tx, ty) = BrdfParams::angles_from_normal(normal);
+    let rv = px(r);
+    BrdfParams {
+        rho_d: px(d),
+        rho_s: px(s),
+        alpha_x: rv[0],
+        alpha_y: rv[1],
+        normal_theta_x: tx,
+        normal_theta_y: ty,
+    }
+}
+
+/// Read `fit.json` and the linear EXR maps of an output folder.
+pub fn read_maps(dir: &Path) -> Result<LoadedMaps, FitError> {
     use svbrdf_core::maps::read_image_linear;
     let file = dir.join(FIT_FILE);
     let manifest: FitManifest = svbrdf_core::fsutil::read_json(&file)?;
@@ -389,26 +414,7 @@ pub fn read_maps(dir: &Path) -> Result<LoadedMaps, FitError> {
         read("normal")?,
     );
     let params = (0..grid.len())
-        .map(|i| {
-            let px = |img: &ImageF32| -> [f64; 3] {
-                let v = &img.data[3 * i..3 * i + 3];
-                [f64::from(v[0]), f64::from(v[1]), f64::from(v[2])]
-            };
-            let nv = px(&n);
-            let normal = Vec3::new(nv[0], nv[1], nv[2])
-                .try_normalize(1e-9)
-                .unwrap_or_else(Vec3::z);
-            let (tx, ty) = BrdfParams::angles_from_normal(normal);
-            let rv = px(&r);
-            BrdfParams {
-                rho_d: px(&d),
-                rho_s: px(&s),
-                alpha_x: rv[0],
-                alpha_y: rv[1],
-                normal_theta_x: tx,
-                normal_theta_y: ty,
-            }
-        })
+        .map(|i| params_from_maps([&d, &s, &r, &n], i))
         .collect();
     Ok(LoadedMaps {
         manifest,

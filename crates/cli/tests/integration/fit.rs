@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use crate::util::{stderr, svbrdf, temp_dir, tiny_capture};
+use crate::util::{json_lines, stderr, svbrdf, temp_dir, tiny_capture};
 
 fn png_text(path: &Path) -> Vec<(String, String)> {
     let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
@@ -106,10 +106,7 @@ fn fit_accuracy_on_tiny_within_loose_bounds_and_refinement_helps() {
         synth.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&o.stdout)
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let lines = json_lines(&o);
     assert_eq!(lines.len(), 2);
     let acc = |i: usize, k: &str| lines[i]["accuracy"][k].as_f64().unwrap();
     assert_eq!(lines[0]["refine"], false);
@@ -144,10 +141,7 @@ fn truth_blur_scores_perfect_maps_and_grows_with_the_blur() {
         "0,0.5,1",
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let lines: Vec<serde_json::Value> = String::from_utf8_lossy(&o.stdout)
-        .lines()
-        .map(|l| serde_json::from_str(l).unwrap())
-        .collect();
+    let lines = json_lines(&o);
     assert_eq!(lines.len(), 3);
     let acc = |i: usize, k: &str| lines[i]["accuracy"][k].as_f64().unwrap();
     assert_eq!(lines[0]["bench"], "resolution_floor");

@@ -41,6 +41,14 @@ pub fn tiny_capture() -> &'static Path {
     })
 }
 
+/// Standard output as JSON lines (the benchmark's format).
+pub fn json_lines(o: &Output) -> Vec<serde_json::Value> {
+    String::from_utf8_lossy(&o.stdout)
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap())
+        .collect()
+}
+
 pub fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
