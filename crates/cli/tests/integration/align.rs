@@ -71,6 +71,14 @@ fn tiny_alignment_matches_ground_truth() {
     assert!(get("align_error_px_median") < 0.5, "{v}");
     assert!(get("align_error_px_p95") < 1.5, "{v}");
     assert!(get("camera_error_mm_median") < 3.0, "{v}");
+    // The worst frame's p95 is one of the per-frame figures and bounds them all.
+    let per_frame = v["per_frame_px_median_p95"].as_array().unwrap();
+    let worst = get("worst_frame_px_p95");
+    assert!(per_frame.iter().all(|f| f[2].as_f64().unwrap() <= worst));
+    assert!(per_frame
+        .iter()
+        .any(|f| f[0] == v["worst_frame"] && f[2] == v["worst_frame_px_p95"]));
+    assert!(worst < 3.0, "{v}");
 }
 
 #[test]
