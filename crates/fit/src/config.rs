@@ -33,6 +33,9 @@ pub struct FitConfig {
     pub censor_clipped: bool,
     /// Observations within this many frame pixels of the image border are dropped.
     pub border_px: f64,
+    /// Sample frames bicubically (Catmull-Rom) instead of bilinearly, except next to
+    /// clipped pixels.
+    pub bicubic: bool,
     /// Pixels with fewer observations are not fitted on their own: they take their
     /// neighbour's cluster and are marked in the coverage map.
     pub min_observations: usize,
@@ -117,6 +120,7 @@ impl Default for FitConfig {
             saturation: 0.9,
             censor_clipped: true,
             border_px: 2.0,
+            bicubic: true,
             min_observations: 3,
             k_min: 2,
             k_max: 20,
@@ -135,7 +139,7 @@ impl Default for FitConfig {
             alpha_max: 1.0,
             max_normal_deg: 45.0,
             refine: true,
-            refine_prior: 1.0,
+            refine_prior: 0.5,
             refine_iterations: 3,
             refine_robust: 1.0,
             refine_specular: false,

@@ -222,6 +222,7 @@ pub struct ObservationBuilder {
     censor: bool,
     lut: [f32; 256],
     border: f64,
+    bicubic: bool,
     bin_deg: f64,
     bin_cm: f64,
 }
@@ -263,6 +264,7 @@ impl ObservationBuilder {
             censor: cfg.censor_clipped,
             lut: srgb8_to_linear_table(),
             border: cfg.border_px,
+            bicubic: cfg.bicubic,
             bin_deg: cfg.bin_deg,
             bin_cm: cfg.bin_cm,
         })
@@ -322,7 +324,7 @@ impl ObservationBuilder {
             f64::from(h) - 1.0 - self.border,
         );
         let (border, sat, bd, bc) = (self.border, self.saturation, self.bin_deg, self.bin_cm);
-        let censor = self.censor;
+        let (censor, bicubic) = (self.censor, self.bicubic);
         let lut = &self.lut;
         let rows: Vec<(FrameObs, u64)> = (r0..r1)
             .into_par_iter()
@@ -338,7 +340,10 @@ impl ObservationBuilder {
                     if !(p.x >= border && p.y >= border && p.x <= xmax && p.y <= ymax) {
                         continue;
                     }
-                    img.sample_linear(p.x, p.y, lut, &mut c);
+                    // Next to clipped pixels the cubic's negative lobes ring: bilinear there.
+                    if !bicubic || img.sample_linear_cubic(p.x, p.y, lut, &mut c) >= sat {
+                        img.sample_linear(p.x, p.y, lut, &mut c);
+                    }
                     if !c.iter().all(|v| v.is_finite()) {
                         continue;
                     }
