@@ -34,7 +34,10 @@ pub struct FitConfig {
     /// Observations within this many frame pixels of the image border are dropped.
     pub border_px: f64,
     /// Sample frames bicubically (Catmull-Rom) instead of bilinearly, except next to
-    /// clipped pixels.
+    /// clipped pixels. A bilinear sample is a one-pixel tent blur, and at 10-20 cm the
+    /// video's pixels are about the size of an output pixel, so pixel-scale texture was
+    /// blurred twice; on the paper preset bicubic samples (with the prior at 0.5) took
+    /// the diffuse RMSE from 0.0236 to 0.0222 for 8% more observation time.
     pub bicubic: bool,
     /// Pixels with fewer observations are not fitted on their own: they take their
     /// neighbour's cluster and are marked in the coverage map.
