@@ -710,12 +710,12 @@ pub fn run(a: &BenchArgs) -> Result<()> {
             return Ok(());
         }
     }
+    if let Some(sigma) = a.truth_blur.iter().find(|s| !(0.0..=10.0).contains(*s)) {
+        anyhow::bail!("--truth-blur {sigma}: expected widths in [0, 10] pixels");
+    }
     if let (false, Some(t)) = (a.truth_blur.is_empty(), &a.truth) {
         let truth = load_truth(t)?;
         for &sigma in &a.truth_blur {
-            if !(0.0..=10.0).contains(&sigma) {
-                anyhow::bail!("--truth-blur {sigma}: expected widths in [0, 10] pixels");
-            }
             let acc = svbrdf_fit::evaluate::blurred_truth(&truth, &svbrdf_core::brdf::Ward, sigma);
             println!(
                 "{}",

@@ -87,6 +87,38 @@ fn bilinear_taps(
     )
 }
 
+/// Weighted sum of the 4 x 4 taps `read(col, row)` into `out` (clamped at 0); returns
+/// the largest tap value.
+#[inline(always)]
+fn cubic_taps(
+    cols: &[usize; 4],
+    rows: &[usize; 4],
+    wx: [f32; 4],
+    wy: [f32; 4],
+    out: &mut [f32; 3],
+    read: impl Fn(usize, usize) -> [f32; 3],
+) -> f32 {
+    let mut acc = [0f32; 3];
+    let mut peak = 0f32;
+    for (r, wr) in rows.iter().zip(wy) {
+        let mut line = [0f32; 3];
+        for (c, wc) in cols.iter().zip(wx) {
+            let v = read(*c, *r);
+            for k in 0..3 {
+                peak = peak.max(v[k]);
+                line[k] += wc * v[k];
+            }
+        }
+        for k in 0..3 {
+            acc[k] += wr * line[k];
+        }
+    }
+    for k in 0..3 {
+        out[k] = acc[k].max(0.0);
+    }
+    peak
+}
+
 /// Catmull-Rom weights of the taps at -1, 0, 1, 2 for a fraction `t` in [0, 1).
 #[inline]
 fn catmull_rom_weights(t: f32) -> [f32; 4] {
@@ -251,34 +283,17 @@ impl FrameImage {
         let tap = |v: f64, m: usize| (v.max(0.0) as usize).min(m.saturating_sub(1));
         let cols = [-1.0, 0.0, 1.0, 2.0].map(|d| tap(x0 + d, w));
         let rows = [-1.0, 0.0, 1.0, 2.0].map(|d| tap(y0 + d, h));
-        let mut acc = [0f32; 3];
-        let mut peak = 0f32;
-        for (r, wr) in rows.iter().zip(wy) {
-            let mut line = [0f32; 3];
-            for (c, wc) in cols.iter().zip(wx) {
-                let v: [f32; 3] = match self {
-                    Self::Srgb8(i) => {
-                        let p = i.pixel(*c, *r);
-                        [0, 1, 2].map(|k| lut[usize::from(p[k])])
-                    }
-                    Self::Linear(i) => {
-                        let p = i.pixel(*c, *r);
-                        [p[0], p[1], p[2]]
-                    }
-                };
-                for k in 0..3 {
-                    peak = peak.max(v[k]);
-                    line[k] += wc * v[k];
-                }
-            }
-            for k in 0..3 {
-                acc[k] += wr * line[k];
-            }
+        // One loop per pixel type, so that the 16 taps do not branch on it.
+        match self {
+            Self::Srgb8(i) => cubic_taps(&cols, &rows, wx, wy, out, |c, r| {
+                let p = i.pixel(c, r);
+                [0, 1, 2].map(|k| lut[usize::from(p[k])])
+            }),
+            Self::Linear(i) => cubic_taps(&cols, &rows, wx, wy, out, |c, r| {
+                let p = i.pixel(c, r);
+                [p[0], p[1], p[2]]
+            }),
         }
-        for k in 0..3 {
-            out[k] = acc[k].max(0.0);
-        }
-        peak
     }
 
     /// (width, height, channels).

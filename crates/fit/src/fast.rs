@@ -334,14 +334,17 @@ fn cauchy_weights(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3], k: f6
     let mut e = std::mem::take(&mut b.scratch);
     b.errors(p, intensity, &mut e);
     let n = b.len();
-    let mut sorted: Vec<f32> = e[..n].iter().map(|v| v.sqrt()).collect();
-    if sorted.is_empty() {
+    if n == 0 {
         b.scratch = e;
         return;
     }
-    let mid = sorted.len() / 2;
-    let med = *sorted.select_nth_unstable_by(mid, f32::total_cmp).1;
-    let c = (k as f32 * 1.4826 * med).max(ROBUST_FLOOR);
+    // The median of the squared errors, found in `robust` (overwritten below, in the
+    // observations' order, from `e`): the same element as the median of their roots.
+    b.robust[..n].copy_from_slice(&e[..n]);
+    let med2 = *b.robust[..n]
+        .select_nth_unstable_by(n / 2, f32::total_cmp)
+        .1;
+    let c = (k as f32 * 1.4826 * med2.sqrt()).max(ROBUST_FLOOR);
     let inv_c2 = 1.0 / (c * c);
     for (w, err2) in b.robust[..n].iter_mut().zip(&e[..n]) {
         *w = (1.0 / (1.0 + err2 * inv_c2)).sqrt();
