@@ -104,8 +104,18 @@ pub struct FitConfig {
     /// Robust per-pixel refinement: Cauchy weights with this scale, in units of the
     /// pixel's robust residual spread at its cluster's solution (0: plain least squares).
     pub refine_robust: f64,
-    /// Gauss-Newton iterations of the per-pixel refinement.
+    /// Gauss-Newton iterations of the per-pixel refinement (per round), spread over
+    /// the passes when lobe refits run (3 iterations and 3 refits: one per pass).
     pub refine_iterations: usize,
+    /// Rounds of the robust refinement: each further round recomputes the Cauchy
+    /// weights at the pixel's own solution (iteratively reweighted least squares).
+    pub refine_rounds: usize,
+    /// After the refinement, refit each cluster's specular lobe (rho_s, alpha_x,
+    /// alpha_y) with its pixels' refined normals and diffuse albedos held (Ward only),
+    /// this many times, refining the pixels again between refits (0: no refit).
+    pub lobe_refits: usize,
+    /// Pixels of a cluster (spread evenly) whose observations feed its lobe refit.
+    pub refit_lobe_pixels: usize,
     /// Frames shown in the re-rendering strip.
     pub strip_frames: usize,
     /// Fit a Lambertian material only (`rho_s = 0` everywhere): the baseline that
@@ -144,6 +154,9 @@ impl Default for FitConfig {
             refine: true,
             refine_prior: 0.5,
             refine_iterations: 3,
+            refine_rounds: 1,
+            lobe_refits: 3,
+            refit_lobe_pixels: 4000,
             refine_robust: 1.0,
             refine_specular: false,
             refine_max_normal_change_deg: 3.0,
@@ -258,6 +271,12 @@ impl FitConfig {
         }
         if !(self.refine_prior >= 0.0 && self.refine_prior.is_finite()) {
             return bad("refinement prior", &self.refine_prior, ">= 0");
+        }
+        if self.refine_rounds == 0 {
+            return bad("refinement rounds", &self.refine_rounds, ">= 1");
+        }
+        if self.lobe_refits > 0 && self.refit_lobe_pixels == 0 {
+            return bad("lobe refit pixels", &self.refit_lobe_pixels, ">= 1");
         }
         Ok(())
     }

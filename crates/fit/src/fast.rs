@@ -81,6 +81,11 @@ impl PixelBatch {
     pub fn errors(&mut self, p: &BrdfParams, intensity: [f64; 3], out: &mut Vec<f32>) {
         let w = WardF32::new(&Prepared::new(*p));
         shapes(&w, &self.geom, &mut self.shapes);
+        self.errors_from_shapes(p, intensity, out);
+    }
+
+    /// [`errors`](Self::errors) with `self.shapes` already evaluated under `p`.
+    fn errors_from_shapes(&self, p: &BrdfParams, intensity: [f64; 3], out: &mut Vec<f32>) {
         let n = self.geom.padded_len();
         out.clear();
         out.resize(n, 0.0);
@@ -330,9 +335,10 @@ type Vec5 = SVector<f64, 5>;
 /// frames near the highlight disagree with it by far more than the noise; in plain
 /// least squares they pull the pixel's diffuse albedo and show as streaks and as the
 /// outlines of those frames' footprints.
+/// `b.shapes` must hold the shape terms under `p`.
 fn cauchy_weights(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3], k: f64) {
     let mut e = std::mem::take(&mut b.scratch);
-    b.errors(p, intensity, &mut e);
+    b.errors_from_shapes(p, intensity, &mut e);
     let n = b.len();
     if n == 0 {
         b.scratch = e;
@@ -357,10 +363,16 @@ fn cauchy_weights(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3], k: f6
 const ROBUST_FLOOR: f32 = 0.004;
 
 /// Cost, normal matrix and gradient of the refinement's five parameters (rho_d per
-/// channel, then the two normal angles) at `p`.
+/// channel, then the two normal angles) at `p`; leaves `b.shapes` evaluated under `p`.
 fn linearise(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, Mat5, Vec5) {
     let w = WardF32::new(&Prepared::new(*p));
     shapes_grad(&w, &b.geom, &mut b.shapes);
+    accumulate(b, p, intensity)
+}
+
+/// [`linearise`] from shape terms already evaluated under `p` (a new set of robust
+/// weights needs no new evaluation of the model).
+fn accumulate(b: &PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, Mat5, Vec5) {
     let n = b.geom.padded_len();
     let sh = &b.shapes;
     let mut a = Mat5::zeros();
@@ -422,6 +434,19 @@ fn linearise(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, M
     (cost, a, g)
 }
 
+/// How [`refine_pixel`] fits (the `refine_*` fields of [`crate::FitConfig`]).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RefineSettings {
+    /// Strength of the pull towards the start, in average observations.
+    pub prior: f64,
+    /// Levenberg-Marquardt iterations per round.
+    pub iterations: usize,
+    /// Cauchy scale in units of the pixel's robust residual spread (0: least squares).
+    pub robust: f64,
+    /// Rounds; each after the first recomputes the Cauchy weights (>= 1).
+    pub rounds: usize,
+}
+
 /// Per-pixel refinement of diffuse albedo and the normal angles (the other parameters
 /// stay at the cluster's `init`), pulled towards `init` by a prior as strong as
 /// `strength` average observations of each parameter: bounded Levenberg-Marquardt as
@@ -432,10 +457,14 @@ pub fn refine_pixel(
     init: &BrdfParams,
     intensity: [f64; 3],
     bounds: &Bounds,
-    strength: f64,
-    max_iterations: usize,
-    robust: f64,
+    settings: &RefineSettings,
 ) -> BrdfParams {
+    let RefineSettings {
+        prior: strength,
+        iterations: max_iterations,
+        robust,
+        rounds,
+    } = *settings;
     let hi: [f64; 5] = [
         (1.0 - init.rho_s[0]).max(0.0),
         (1.0 - init.rho_s[1]).max(0.0),
@@ -471,48 +500,69 @@ pub fn refine_pixel(
     let mut x = to_x(init);
     project(&mut x);
     let centre = x;
+    let w = WardF32::new(&Prepared::new(of_x(&x)));
+    shapes_grad(&w, &b.geom, &mut b.shapes);
     if robust > 0.0 {
         cauchy_weights(b, &of_x(&x), intensity, robust);
     }
-    let (data, mut jtj, mut jtr) = linearise(b, &of_x(&x), intensity);
+    let (mut data, mut jtj, mut jtr) = accumulate(b, &of_x(&x), intensity);
+    // Whether `b.shapes` holds the model under `x` (not under a rejected trial).
+    let mut shapes_at_x = true;
     let n = b.len().max(1) as f64;
     let weight: [f64; 5] = std::array::from_fn(|k| strength * jtj[(k, k)].max(1e-12) / n);
     let prior_cost =
         |x: &[f64; 5]| -> f64 { (0..5).map(|k| weight[k] * (x[k] - centre[k]).powi(2)).sum() };
-    let mut total = data + prior_cost(&x);
-    let mut lambda = 1e-3;
-    for _ in 0..max_iterations {
-        let mut a = jtj;
-        let mut rhs = -jtr;
-        for k in 0..5 {
-            a[(k, k)] += weight[k];
-            rhs[k] -= weight[k] * (x[k] - centre[k]);
-        }
-        let pressed: [bool; 5] = std::array::from_fn(|k| {
-            let grad = -rhs[k];
-            (x[k] <= lo[k] && grad > 0.0) || (x[k] >= hi[k] && grad < 0.0)
-        });
-        let Some(step) = damped_step(a, rhs, &pressed, lambda) else {
-            lambda *= 10.0;
-            if lambda > 1e10 {
+    // Iteratively reweighted: each further round recomputes the Cauchy weights from the
+    // residuals at the pixel's own solution instead of its cluster's.
+    for round in 0..rounds.max(1) {
+        if round > 0 {
+            if robust <= 0.0 {
                 break;
             }
-            continue;
-        };
-        let mut trial = x;
-        for k in 0..5 {
-            trial[k] += step[k];
+            if !shapes_at_x {
+                let w = WardF32::new(&Prepared::new(of_x(&x)));
+                shapes_grad(&w, &b.geom, &mut b.shapes);
+            }
+            cauchy_weights(b, &of_x(&x), intensity, robust);
+            (data, jtj, jtr) = accumulate(b, &of_x(&x), intensity);
+            shapes_at_x = true;
         }
-        project(&mut trial);
-        let (d, a2, g2) = linearise(b, &of_x(&trial), intensity);
-        let t = d + prior_cost(&trial);
-        if t.is_finite() && t < total {
-            (x, jtj, jtr, total) = (trial, a2, g2, t);
-            lambda = (lambda / 3.0).max(1e-9);
-        } else {
-            lambda *= 4.0;
-            if lambda > 1e10 {
-                break;
+        let mut total = data + prior_cost(&x);
+        let mut lambda = 1e-3;
+        for _ in 0..max_iterations {
+            let mut a = jtj;
+            let mut rhs = -jtr;
+            for k in 0..5 {
+                a[(k, k)] += weight[k];
+                rhs[k] -= weight[k] * (x[k] - centre[k]);
+            }
+            let pressed: [bool; 5] = std::array::from_fn(|k| {
+                let grad = -rhs[k];
+                (x[k] <= lo[k] && grad > 0.0) || (x[k] >= hi[k] && grad < 0.0)
+            });
+            let Some(step) = damped_step(a, rhs, &pressed, lambda) else {
+                lambda *= 10.0;
+                if lambda > 1e10 {
+                    break;
+                }
+                continue;
+            };
+            let mut trial = x;
+            for k in 0..5 {
+                trial[k] += step[k];
+            }
+            project(&mut trial);
+            let (d, a2, g2) = linearise(b, &of_x(&trial), intensity);
+            let t = d + prior_cost(&trial);
+            shapes_at_x = t.is_finite() && t < total;
+            if shapes_at_x {
+                (x, jtj, jtr, total) = (trial, a2, g2, t);
+                lambda = (lambda / 3.0).max(1e-9);
+            } else {
+                lambda *= 4.0;
+                if lambda > 1e10 {
+                    break;
+                }
             }
         }
     }
@@ -634,23 +684,32 @@ mod tests {
             ..t
         };
         let bounds = Bounds::symmetric(0.02, 1.0, 0.2);
-        let p = refine_pixel(&mut b, &start, [200.0; 3], &bounds, 0.0, 30, 0.0);
+        let p = refine_pixel(&mut b, &start, [200.0; 3], &bounds, &settings(0.0, 0.0, 1));
         for c in 0..3 {
             assert!((p.rho_d[c] - t.rho_d[c]).abs() < 2e-3, "{p:?}");
         }
         assert!((p.normal_theta_x - t.normal_theta_x).abs() < 2e-3, "{p:?}");
         assert!((p.normal_theta_y - t.normal_theta_y).abs() < 2e-3, "{p:?}");
         // A strong prior holds the start; tight bounds hold the normal.
-        let held = refine_pixel(&mut b, &start, [200.0; 3], &bounds, 1e9, 30, 0.0);
+        let held = refine_pixel(&mut b, &start, [200.0; 3], &bounds, &settings(1e9, 0.0, 1));
         assert!((held.rho_d[0] - start.rho_d[0]).abs() < 1e-4, "{held:?}");
         let tight = Bounds {
             normal_lo: [-0.01; 2],
             normal_hi: [0.01; 2],
             ..bounds
         };
-        let p = refine_pixel(&mut b, &start, [200.0; 3], &tight, 0.0, 30, 0.0);
+        let p = refine_pixel(&mut b, &start, [200.0; 3], &tight, &settings(0.0, 0.0, 1));
         assert!(p.normal_theta_x <= 0.01 + 1e-12 && p.normal_theta_y >= -0.01 - 1e-12);
         assert!(p.is_physical());
+    }
+
+    fn settings(prior: f64, robust: f64, rounds: usize) -> RefineSettings {
+        RefineSettings {
+            prior,
+            iterations: 30,
+            robust,
+            rounds,
+        }
     }
 
     #[test]
@@ -681,15 +740,22 @@ mod tests {
                 .fold(0.0, f64::max)
         };
         b.gather(&obs, 4, 1);
-        let plain = refine_pixel(&mut b, &start, [200.0; 3], &bounds, 0.0, 30, 0.0);
+        let plain = refine_pixel(&mut b, &start, [200.0; 3], &bounds, &settings(0.0, 0.0, 1));
         b.gather(&obs, 4, 1);
-        let robust = refine_pixel(&mut b, &start, [200.0; 3], &bounds, 0.0, 30, 1.0);
+        let robust = refine_pixel(&mut b, &start, [200.0; 3], &bounds, &settings(0.0, 1.0, 1));
         assert!(
             err(&plain) > 0.02,
             "outliers should bias least squares: {plain:?}"
         );
         assert!(err(&robust) < 0.25 * err(&plain), "{robust:?} vs {plain:?}");
         assert!(robust.is_physical());
+        // Reweighting at the pixel's own solution does not undo it.
+        b.gather(&obs, 4, 1);
+        let rounds = refine_pixel(&mut b, &start, [200.0; 3], &bounds, &settings(0.0, 1.0, 3));
+        assert!(
+            err(&rounds) <= err(&robust) + 1e-4,
+            "{rounds:?} vs {robust:?}"
+        );
         // Gathering again resets the weights.
         b.gather(&obs, 4, 1);
         assert!(b.robust.iter().all(|w| *w == 1.0));

@@ -199,6 +199,11 @@ pub struct ClusterInfo {
     pub initial: u32,
     /// The cluster's BRDF (before per-pixel refinement).
     pub params: BrdfParams,
+    /// The specular lobe of the last lobe refit (`rho_s`, `alpha_x`, `alpha_y`; its
+    /// `rho_d` and normal are zero: those are per pixel in the maps), which the maps
+    /// use; absent where no refit ran or it did not lower the cluster's error.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refitted_lobe: Option<BrdfParams>,
     /// RMS error over its pixels' observations (at most `max_split_observations` per
     /// pixel), linear radiance.
     pub rmse: f64,
@@ -249,6 +254,12 @@ pub struct FitSummary {
     pub unconverged_clusters: Vec<u32>,
     /// Whether the per-pixel refinement ran.
     pub refined: bool,
+    /// Lobe refits run after the refinement (each after a refinement pass).
+    #[serde(default)]
+    pub lobe_refits: usize,
+    /// Clusters whose lobe the last refit replaced.
+    #[serde(default)]
+    pub refitted_clusters: usize,
     /// RMS error of the cluster solutions (before refinement, linear), over the
     /// observations the split decisions use: at most `max_split_observations` per pixel.
     pub rmse_clusters: f64,
@@ -369,7 +380,15 @@ thread_local! {
 /// maps are constant within a cluster). Each pixel is fitted to its own raw
 /// observations, pulled towards its cluster's solution by a prior as strong as
 /// `refine_prior` average observations of each parameter.
-fn refine(ctx: &Context, params: &mut [BrdfParams], covered: &[bool]) {
+/// The normal's trust region is centred on `anchor(pixel)` (the cluster's normal
+/// angles), so that a second pass cannot walk further from the cluster than the first.
+fn refine(
+    ctx: &Context,
+    params: &mut [BrdfParams],
+    covered: &[bool],
+    anchor: impl Fn(usize) -> [f64; 2] + Sync,
+    iterations: usize,
+) {
     let obs = ctx.obs;
     let global = ctx.bounds();
     let delta = ctx.cfg.refine_max_normal_change_deg.to_radians();
@@ -383,25 +402,23 @@ fn refine(ctx: &Context, params: &mut [BrdfParams], covered: &[bool]) {
             if !covered[px] {
                 return;
             }
-            let x0 = p.to_array();
+            let a = anchor(px);
             let mut bounds = global;
             for k in 0..2 {
-                bounds.normal_lo[k] = (x0[8 + k] - delta).max(global.normal_lo[k]);
-                bounds.normal_hi[k] = (x0[8 + k] + delta).min(global.normal_hi[k]);
+                bounds.normal_lo[k] = (a[k] - delta).max(global.normal_lo[k]);
+                bounds.normal_hi[k] = (a[k] + delta).min(global.normal_hi[k]);
             }
-            let (prior, iterations) = (ctx.cfg.refine_prior, ctx.cfg.refine_iterations);
+            let prior = ctx.cfg.refine_prior;
+            let settings = fast::RefineSettings {
+                prior,
+                iterations,
+                robust: ctx.cfg.refine_robust,
+                rounds: ctx.cfg.refine_rounds,
+            };
             let q = if ward_fast {
                 BATCH.with_borrow_mut(|b| {
                     b.gather(obs, px, 1);
-                    fast::refine_pixel(
-                        b,
-                        p,
-                        ctx.intensity,
-                        &bounds,
-                        prior,
-                        iterations,
-                        ctx.cfg.refine_robust,
-                    )
+                    fast::refine_pixel(b, p, ctx.intensity, &bounds, &settings)
                 })
             } else {
                 let samples: Vec<Sample> = obs
@@ -538,14 +555,72 @@ pub fn fit(
     let rmse_clusters = (sse_clusters / (3 * n_obs_fit.max(1)) as f64).sqrt();
 
     let t = Instant::now();
+    let mut refits = 0;
+    let mut lobes: Vec<Option<BrdfParams>> = vec![None; leaves.len()];
     if cfg.refine {
         progress.stage("per-pixel refinement", 1);
-        refine(&ctx, &mut params, &covered);
+        let anchor = |px: usize| {
+            let l = &leaves[cluster[px] as usize].params;
+            [l.normal_theta_x, l.normal_theta_y]
+        };
+        refits = if model.kind() == ModelKind::Ward && !cfg.diffuse_only {
+            cfg.lobe_refits
+        } else {
+            0
+        };
+        // The iterations are spread over the passes between lobe refits: each pass
+        // starts from a sharper lobe, which is worth more than further iterations
+        // against the first one.
+        let iterations = cfg.refine_iterations.div_ceil(refits.max(1));
+        refine(&ctx, &mut params, &covered, anchor, iterations);
         progress.finish();
         timings.push((
             "per-pixel refinement".to_string(),
             t.elapsed().as_secs_f64(),
         ));
+        // Clusters whose lobe the last refit moved: only their pixels are refined again.
+        let mut moved = vec![true; leaves.len()];
+        for pass in 0..refits {
+            let t = Instant::now();
+            if pass > 0 {
+                progress.stage("per-pixel refinement", 1);
+                let again: Vec<bool> = covered
+                    .iter()
+                    .zip(&cluster)
+                    .map(|(&c, &l)| c && moved[l as usize])
+                    .collect();
+                refine(&ctx, &mut params, &again, anchor, iterations);
+                progress.finish();
+                timings.push((
+                    "per-pixel refinement".to_string(),
+                    t.elapsed().as_secs_f64(),
+                ));
+            }
+            let t = Instant::now();
+            progress.stage("lobe refit", 1);
+            let new: Vec<Option<BrdfParams>> = leaves
+                .par_iter()
+                .map(|l| tree::refit_lobe(&ctx, l, &params))
+                .collect();
+            for (i, q) in new.into_iter().enumerate() {
+                let before = lobes[i].unwrap_or(leaves[i].params);
+                moved[i] = q.is_some_and(|q| tree::lobe_moved(&before, &q));
+                if q.is_some() {
+                    lobes[i] = q;
+                }
+            }
+            for (p, &c) in params.iter_mut().zip(&cluster) {
+                if let Some(q) = lobes[c as usize] {
+                    for k in 0..3 {
+                        p.rho_s[k] = q.rho_s[k].min(1.0 - p.rho_d[k]).max(0.0);
+                    }
+                    p.alpha_x = q.alpha_x;
+                    p.alpha_y = q.alpha_y;
+                }
+            }
+            progress.finish();
+            timings.push(("lobe refit".to_string(), t.elapsed().as_secs_f64()));
+        }
     }
 
     let t = Instant::now();
@@ -579,6 +654,8 @@ pub fn fit(
         max_depth: leaves.iter().map(|l| l.depth).max().unwrap_or(0),
         unconverged_clusters: unconverged,
         refined: cfg.refine,
+        lobe_refits: refits,
+        refitted_clusters: lobes.iter().filter(|l| l.is_some()).count(),
         rmse_clusters,
         rmse_final,
         frames,
@@ -601,6 +678,7 @@ pub fn fit(
                     pixels: l.pixels.len(),
                     depth: l.depth,
                     params: l.params,
+                    refitted_lobe: lobes[i],
                     rmse: (l.sse / (3 * l.observations.max(1)) as f64).sqrt(),
                     converged: l.converged,
                 })
