@@ -112,7 +112,9 @@ pub struct FitConfig {
     pub refine_rounds: usize,
     /// After the refinement, refit each cluster's specular lobe (rho_s, alpha_x,
     /// alpha_y) with its pixels' refined normals and diffuse albedos held (Ward only),
-    /// this many times, refining the pixels again between refits (0: no refit).
+    /// this many times, refining the pixels again between refits (0: no refit; only
+    /// with `refine`). Measured on the paper preset with true poses: relighting 81% ->
+    /// 70%, diffuse RMSE 0.0222 -> 0.0206, for about 12% more fitting time.
     pub lobe_refits: usize,
     /// Pixels of a cluster (spread evenly) whose observations feed its lobe refit.
     pub refit_lobe_pixels: usize,

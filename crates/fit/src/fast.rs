@@ -576,7 +576,7 @@ mod tests {
     use svbrdf_core::geometry::Vec3;
     use svbrdf_core::plane::{PlaneGrid, Region};
 
-    use crate::observations::{bin_key, FrameGeometry};
+    use crate::observations::FrameGeometry;
 
     /// One 3x3-pixel patch observed from 30 flash positions, rendered with Ward.
     fn observed(truth: &BrdfParams, intensity: f64) -> Observations {
@@ -592,40 +592,7 @@ mod tests {
                 }
             })
             .collect();
-        let prep = Prepared::new(*truth);
-        let mut start = vec![0];
-        let (mut frame, mut rgb, mut key) = (Vec::new(), Vec::new(), Vec::new());
-        for px in 0..grid.len() {
-            let q = grid.pixel_centre(px % grid.width, px / grid.width);
-            for (k, f) in frames.iter().enumerate() {
-                let lv = svbrdf_core::brdf::LightView::from_points(
-                    Vec3::new(q.x, q.y, 0.0),
-                    f.light,
-                    f.camera,
-                );
-                let v = Ward.radiance(&prep, &lv, intensity);
-                frame.push(k as u16);
-                rgb.push(v.map(|c| {
-                    if c >= 0.9 {
-                        CLIPPED
-                    } else {
-                        (c * RGB_SCALE).round() as u16
-                    }
-                }));
-                key.push(bin_key(&lv, 5.0, 1.0));
-            }
-            start.push(frame.len());
-        }
-        Observations {
-            grid,
-            frames,
-            start,
-            frame,
-            rgb,
-            key,
-            clipped: 0,
-            saturation: 0.9,
-        }
+        crate::observations::rendered(grid, frames, |_| *truth, intensity, false)
     }
 
     fn truth() -> BrdfParams {

@@ -691,7 +691,7 @@ pub fn fit(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use svbrdf_core::brdf::{BrdfModel, LightView, Prepared, Ward};
+    use svbrdf_core::brdf::{BrdfModel, Prepared, Ward};
     use svbrdf_core::geometry::Vec3;
     use svbrdf_core::plane::Region;
     use svbrdf_core::progress::NoProgress;
@@ -727,34 +727,13 @@ mod tests {
                 light: camera + Vec3::new(1.4, -0.3, 0.0),
             });
         }
-        let npx = grid.len();
-        let mut start = vec![0usize];
-        let (mut frame, mut rgb, mut key) = (Vec::new(), Vec::new(), Vec::new());
-        for px in 0..npx {
-            let q = grid.pixel_centre(px % grid.width, px / grid.width);
-            let p = Prepared::new(truth[usize::from(q.x > 0.0)]);
-            for (k, f) in frames.iter().enumerate() {
-                let lv = LightView::from_points(Vec3::new(q.x, q.y, 0.0), f.light, f.camera);
-                let v = Ward.radiance(&p, &lv, 100.0);
-                if v.iter().any(|c| *c >= 0.9) {
-                    continue;
-                }
-                frame.push(k as u16);
-                rgb.push(v.map(|c| (c * observations::RGB_SCALE).round() as u16));
-                key.push(observations::bin_key(&lv, 5.0, 1.0));
-            }
-            start.push(frame.len());
-        }
-        let obs = Observations {
+        let obs = observations::rendered(
             grid,
             frames,
-            start,
-            frame,
-            rgb,
-            key,
-            clipped: 0,
-            saturation: 0.9,
-        };
+            |px| truth[usize::from(grid.pixel_centre(px % grid.width, px / grid.width).x > 0.0)],
+            100.0,
+            true,
+        );
         let mut cap = RegisteredCapture::new("test", region, 10.0);
         cap.light_intensity = Some([100.0; 3]);
         (obs, cap, truth)

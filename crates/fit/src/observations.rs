@@ -417,6 +417,55 @@ impl ObservationBuilder {
     }
 }
 
+/// Exact Ward observations for tests: every pixel of `grid` seen by every frame,
+/// rendered with `params(pixel)` under `intensity`. Channels at or above 0.9 are stored
+/// as clipped, or with `drop_clipped` the observation is left out.
+#[cfg(test)]
+pub(crate) fn rendered(
+    grid: PlaneGrid,
+    frames: Vec<FrameGeometry>,
+    params: impl Fn(usize) -> svbrdf_core::brdf::BrdfParams,
+    intensity: f64,
+    drop_clipped: bool,
+) -> Observations {
+    use svbrdf_core::brdf::{BrdfModel, Prepared, Ward};
+    let mut start = vec![0];
+    let (mut frame, mut rgb, mut key, mut clipped) = (Vec::new(), Vec::new(), Vec::new(), 0);
+    for px in 0..grid.len() {
+        let q = grid.pixel_centre(px % grid.width, px / grid.width);
+        let p = Prepared::new(params(px));
+        for (k, f) in frames.iter().enumerate() {
+            let lv = LightView::from_points(Vec3::new(q.x, q.y, 0.0), f.light, f.camera);
+            let v = Ward.radiance(&p, &lv, intensity);
+            let any = v.iter().any(|c| *c >= 0.9);
+            if any && drop_clipped {
+                continue;
+            }
+            clipped += u64::from(any);
+            frame.push(k as u16);
+            rgb.push(v.map(|c| {
+                if c >= 0.9 {
+                    CLIPPED
+                } else {
+                    (c * RGB_SCALE).round() as u16
+                }
+            }));
+            key.push(bin_key(&lv, 5.0, 1.0));
+        }
+        start.push(frame.len());
+    }
+    Observations {
+        grid,
+        frames,
+        start,
+        frame,
+        rgb,
+        key,
+        clipped,
+        saturation: 0.9,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
