@@ -125,6 +125,14 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
         s.max_depth,
         s.unconverged_clusters.len()
     );
+    if s.lobe_refits > 0 {
+        say!(
+            "lobe refits with the refined normals: {}; {} of {} clusters took the refitted lobe",
+            s.lobe_refits,
+            s.refitted_clusters,
+            s.final_clusters
+        );
+    }
     say!(
         "light intensity {:.1} ({:?}); model {}",
         s.light_intensity[1],
