@@ -365,9 +365,13 @@ const ROBUST_FLOOR: f32 = 0.004;
 /// Cost, normal matrix and gradient of the refinement's five parameters (rho_d per
 /// channel, then the two normal angles) at `p`; leaves `b.shapes` evaluated under `p`.
 fn linearise(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, Mat5, Vec5) {
-    let w = WardF32::new(&Prepared::new(*p));
-    shapes_grad(&w, &b.geom, &mut b.shapes);
+    shape_terms(b, p);
     accumulate(b, p, intensity)
+}
+
+/// The model's shape terms and their derivatives under `p`, into `b.shapes`.
+fn shape_terms(b: &mut PixelBatch, p: &BrdfParams) {
+    shapes_grad(&WardF32::new(&Prepared::new(*p)), &b.geom, &mut b.shapes);
 }
 
 /// [`linearise`] from shape terms already evaluated under `p` (a new set of robust
@@ -500,8 +504,7 @@ pub fn refine_pixel(
     let mut x = to_x(init);
     project(&mut x);
     let centre = x;
-    let w = WardF32::new(&Prepared::new(of_x(&x)));
-    shapes_grad(&w, &b.geom, &mut b.shapes);
+    shape_terms(b, &of_x(&x));
     if robust > 0.0 {
         cauchy_weights(b, &of_x(&x), intensity, robust);
     }
@@ -520,8 +523,7 @@ pub fn refine_pixel(
                 break;
             }
             if !shapes_at_x {
-                let w = WardF32::new(&Prepared::new(of_x(&x)));
-                shapes_grad(&w, &b.geom, &mut b.shapes);
+                shape_terms(b, &of_x(&x));
             }
             cauchy_weights(b, &of_x(&x), intensity, robust);
             (data, jtj, jtr) = accumulate(b, &of_x(&x), intensity);

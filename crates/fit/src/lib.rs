@@ -199,9 +199,10 @@ pub struct ClusterInfo {
     pub initial: u32,
     /// The cluster's BRDF (before per-pixel refinement).
     pub params: BrdfParams,
-    /// The specular lobe of the last lobe refit (`rho_s`, `alpha_x`, `alpha_y`; its
-    /// `rho_d` and normal are zero: those are per pixel in the maps), which the maps
-    /// use; absent where no refit ran or it did not lower the cluster's error.
+    /// The specular lobe of the last accepted lobe refit (`rho_s`, `alpha_x`,
+    /// `alpha_y`; its `rho_d` and normal are zero: those are per pixel in the maps),
+    /// which the maps use; absent where no refit ran or none was accepted (see
+    /// [`tree::refit_lobe`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub refitted_lobe: Option<BrdfParams>,
     /// RMS error over its pixels' observations (at most `max_split_observations` per
@@ -257,7 +258,7 @@ pub struct FitSummary {
     /// Lobe refits run after the refinement (each after a refinement pass).
     #[serde(default)]
     pub lobe_refits: usize,
-    /// Clusters whose lobe the last refit replaced.
+    /// Clusters whose maps use a refitted lobe.
     #[serde(default)]
     pub refitted_clusters: usize,
     /// RMS error of the cluster solutions (before refinement, linear), over the
@@ -394,6 +395,13 @@ fn refine(
     let delta = ctx.cfg.refine_max_normal_change_deg.to_radians();
     // The batch path refines diffuse albedo and normal only.
     let ward_fast = ctx.model.kind() == ModelKind::Ward && !ctx.cfg.refine_specular;
+    let prior = ctx.cfg.refine_prior;
+    let settings = fast::RefineSettings {
+        prior,
+        iterations,
+        robust: ctx.cfg.refine_robust,
+        rounds: ctx.cfg.refine_rounds,
+    };
     params
         .par_iter_mut()
         .with_min_len(256)
@@ -408,13 +416,6 @@ fn refine(
                 bounds.normal_lo[k] = (a[k] - delta).max(global.normal_lo[k]);
                 bounds.normal_hi[k] = (a[k] + delta).min(global.normal_hi[k]);
             }
-            let prior = ctx.cfg.refine_prior;
-            let settings = fast::RefineSettings {
-                prior,
-                iterations,
-                robust: ctx.cfg.refine_robust,
-                rounds: ctx.cfg.refine_rounds,
-            };
             let q = if ward_fast {
                 BATCH.with_borrow_mut(|b| {
                     b.gather(obs, px, 1);

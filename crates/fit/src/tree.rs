@@ -394,6 +394,7 @@ pub fn refit_lobe(ctx: &Context, leaf: &Leaf, params: &[BrdfParams]) -> Option<B
         let px = px as usize;
         let q = params.get(px)?;
         let f = ShadingFrame::from_normal(q.normal());
+        let local = |d: Vec3| Vec3::new(d.dot(&f.t), d.dot(&f.b), d.dot(&f.n));
         let r = obs.range(px);
         let step = r.len().div_ceil(cap).max(1);
         for o in r.step_by(step) {
@@ -402,7 +403,6 @@ pub fn refit_lobe(ctx: &Context, leaf: &Leaf, params: &[BrdfParams]) -> Option<B
             if cl <= 0.0 || cv <= 0.0 {
                 continue;
             }
-            let local = |d: Vec3| Vec3::new(d.dot(&f.t), d.dot(&f.b), d.dot(&f.n));
             let c = obs.color(o);
             let g = cl / lv.light_dist2;
             samples.push(Sample {
