@@ -96,7 +96,7 @@ fn eval_on_real_photos_beats_the_diffuse_only_baseline() {
     assert!(report.contains("Held-out photographs") && report.contains("07.png"));
     // The strips show in a real browser, with every other image of the report.
     let url = format!("file://{}", out.join("report.html").display());
-    if let Some(dom) = crate::util::chromium_dom(&url, 5000) {
+    if let Some(dom) = crate::util::chromium_dom(&url, 5000, crate::util::images_loaded) {
         use crate::util::body_attribute;
         assert_eq!(body_attribute(&dom, "data-error"), None, "script error");
         let n = body_attribute(&dom, "data-images-expected").unwrap();

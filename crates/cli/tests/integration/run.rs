@@ -188,7 +188,11 @@ fn report_loads_in_chromium_with_every_image() {
     let html = std::fs::read_to_string(&report).unwrap();
     // Self-contained: no external scripts, styles or images.
     assert!(!html.contains("src=\"http") && !html.contains("href=\"http"));
-    let Some(dom) = crate::util::chromium_dom(&format!("file://{}", report.display()), 5000) else {
+    let Some(dom) = crate::util::chromium_dom(
+        &format!("file://{}", report.display()),
+        5000,
+        crate::util::images_loaded,
+    ) else {
         return;
     };
     use crate::util::body_attribute;
@@ -289,7 +293,11 @@ fn viewer_serves_the_gltf_and_the_light_follows_the_pointer() {
         assert!(line.contains(status), "GET {path}: {line:?}");
     }
 
-    let Some(dom) = crate::util::chromium_dom(&format!("{url}?selftest=1"), 15000) else {
+    let Some(dom) = crate::util::chromium_dom(&format!("{url}?selftest=1"), 15000, |dom| {
+        // Loaded and self-tested, or failed for good.
+        crate::util::body_attribute(dom, "data-pixel-change").is_some()
+            || crate::util::body_attribute(dom, "data-error").is_some()
+    }) else {
         return;
     };
     use crate::util::body_attribute;

@@ -113,7 +113,13 @@ pub fn tiny_run() -> &'static Path {
 
 /// Headless Chromium's DOM after loading `url` (scripts run for up to `budget_ms` of
 /// virtual time), or None when Chromium is not installed.
-pub fn chromium_dom(url: &str, budget_ms: u32) -> Option<String> {
+///
+/// Virtual time does not wait for work off the main thread (three.js decodes textures
+/// with `createImageBitmap`), so on a loaded machine the budget can run out before the
+/// page is done although nothing is wrong with it. The page is loaded again, up to three
+/// times with a doubled budget each time, until `ready` accepts its DOM; the last DOM is
+/// returned either way, so a page that never gets ready still fails the caller's checks.
+pub fn chromium_dom(url: &str, budget_ms: u32, ready: impl Fn(&str) -> bool) -> Option<String> {
     let has = Command::new("chromium")
         .arg("--version")
         .output()
@@ -125,28 +131,36 @@ pub fn chromium_dom(url: &str, budget_ms: u32) -> Option<String> {
     ) {
         return None;
     }
-    let profile = temp_dir().join("chromium-profile");
-    let o = Command::new("timeout")
-        .args([
-            "120",
-            "chromium",
-            "--headless",
-            "--no-sandbox",
-            "--disable-gpu",
-        ])
-        .args([
-            "--disable-background-networking",
-            "--no-first-run",
-            "--enable-unsafe-swiftshader",
-        ])
-        .arg(format!("--user-data-dir={}", profile.display()))
-        .arg(format!("--virtual-time-budget={budget_ms}"))
-        .arg("--dump-dom")
-        .arg(url)
-        .output()
-        .expect("failed to start chromium");
-    assert!(o.status.success(), "chromium failed: {}", stderr(&o));
-    Some(String::from_utf8_lossy(&o.stdout).into_owned())
+    let mut dom = String::new();
+    for attempt in 0..3u32 {
+        let profile = temp_dir().join("chromium-profile");
+        let o = Command::new("timeout")
+            .args([
+                "120",
+                "chromium",
+                "--headless",
+                "--no-sandbox",
+                "--disable-gpu",
+            ])
+            .args([
+                "--disable-background-networking",
+                "--no-first-run",
+                "--enable-unsafe-swiftshader",
+            ])
+            .arg(format!("--user-data-dir={}", profile.display()))
+            .arg(format!("--virtual-time-budget={}", budget_ms << attempt))
+            .arg("--dump-dom")
+            .arg(url)
+            .output()
+            .expect("failed to start chromium");
+        assert!(o.status.success(), "chromium failed: {}", stderr(&o));
+        dom = String::from_utf8_lossy(&o.stdout).into_owned();
+        if ready(&dom) {
+            break;
+        }
+        eprintln!("chromium: {url} not ready after attempt {}", attempt + 1);
+    }
+    Some(dom)
 }
 
 /// The value of attribute `name` on the page's `<body>` tag.
@@ -156,4 +170,19 @@ pub fn body_attribute(dom: &str, name: &str) -> Option<String> {
     let key = format!("{name}=\"");
     let i = tag.find(&key)? + key.len();
     Some(tag[i..i + tag[i..].find('"')?].to_string())
+}
+
+/// Whether a report page says it loaded every image it holds (or hit a script error,
+/// which no retry mends).
+pub fn images_loaded(dom: &str) -> bool {
+    if body_attribute(dom, "data-error").is_some() {
+        return true;
+    }
+    match (
+        body_attribute(dom, "data-images-expected"),
+        body_attribute(dom, "data-images-loaded"),
+    ) {
+        (Some(n), Some(loaded)) => loaded == format!("{n}/{n}"),
+        _ => false,
+    }
 }
