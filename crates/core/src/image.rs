@@ -275,7 +275,8 @@ impl FrameImage {
         let ym = (h as f64 - 1.0).max(0.0);
         let x = if x.is_finite() { x.clamp(0.0, xm) } else { 0.0 };
         let y = if y.is_finite() { y.clamp(0.0, ym) } else { 0.0 };
-        let (x0, y0) = (x.floor(), y.floor());
+        // Both are clamped to >= 0, so truncation is the floor (without a libm call).
+        let (x0, y0) = ((x as usize) as f64, (y as usize) as f64);
         let (wx, wy) = (
             catmull_rom_weights((x - x0) as f32),
             catmull_rom_weights((y - y0) as f32),

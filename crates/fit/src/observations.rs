@@ -162,21 +162,31 @@ impl Observations {
 /// shifts the arbitrary partition, and the key costs a third of the libm version
 /// (it is computed once per observation, tens of millions of times).
 pub fn bin_key(lv: &LightView, bin_deg: f64, bin_cm: f64) -> u32 {
+    bin_key_of_directions(lv.light, lv.view, lv.light_dist2, bin_deg, bin_cm)
+}
+
+/// [`bin_key`] from the surface-to-light and surface-to-camera vectors as they are:
+/// the angles do not depend on their lengths, so the sampler skips normalising them.
+#[inline]
+pub fn bin_key_of_directions(
+    light: Vec3,
+    view: Vec3,
+    light_dist2: f64,
+    bin_deg: f64,
+    bin_cm: f64,
+) -> u32 {
     let step = bin_deg.to_radians();
+    // Every quotient below is >= 0, so truncation is the floor (and NaN gives bin 0).
     let polar = |d: Vec3| {
         let s = (d.x * d.x + d.y * d.y).sqrt();
-        (fast_atan2(s, d.z) / step).floor().clamp(0.0, 31.0) as u32
+        ((fast_atan2(s, d.z) / step) as u32).min(31)
     };
     let azimuth = |d: Vec3| {
         let a = fast_atan2(d.y, d.x) + std::f64::consts::PI;
-        (a / step).floor().clamp(0.0, 127.0) as u32
+        ((a / step) as u32).min(127)
     };
-    let r = (lv.light_dist2.sqrt() / bin_cm).floor().clamp(0.0, 255.0) as u32;
-    (polar(lv.light) << 27)
-        | (azimuth(lv.light) << 20)
-        | (polar(lv.view) << 15)
-        | (azimuth(lv.view) << 8)
-        | r
+    let r = ((light_dist2.sqrt() / bin_cm) as u32).min(255);
+    (polar(light) << 27) | (azimuth(light) << 20) | (polar(view) << 15) | (azimuth(view) << 8) | r
 }
 
 /// `atan2(y, x)` in `[-pi, pi]` to within 0.002 radians (a degree-5 odd polynomial for
@@ -329,7 +339,7 @@ impl ObservationBuilder {
         let rows: Vec<(FrameObs, u64)> = (r0..r1)
             .into_par_iter()
             .map(|r| {
-                let mut out = Vec::new();
+                let mut out = Vec::with_capacity(c1 - c0);
                 let mut clipped = 0;
                 let mut c = [0f32; 3];
                 for col in c0..c1 {
@@ -362,9 +372,10 @@ impl ObservationBuilder {
                                 .min(f64::from(CLIPPED - 1)) as u16
                         }
                     });
-                    let lv =
-                        LightView::from_points(Vec3::new(q.x, q.y, 0.0), geom.light, geom.camera);
-                    out.push(((r * grid.width + col) as u32, rgb, bin_key(&lv, bd, bc)));
+                    let surface = Vec3::new(q.x, q.y, 0.0);
+                    let (dl, dv) = (geom.light - surface, geom.camera - surface);
+                    let key = bin_key_of_directions(dl, dv, dl.norm_squared(), bd, bc);
+                    out.push(((r * grid.width + col) as u32, rgb, key));
                 }
                 (out, clipped)
             })
@@ -380,30 +391,7 @@ impl ObservationBuilder {
 
     /// Transpose into per-pixel storage.
     pub fn finish(self) -> Observations {
-        let npx = self.grid.len();
-        let mut start = vec![0usize; npx + 1];
-        for f in &self.per_frame {
-            for (p, _, _) in f {
-                start[*p as usize + 1] += 1;
-            }
-        }
-        for i in 0..npx {
-            start[i + 1] += start[i];
-        }
-        let total = start[npx];
-        let mut frame = vec![0u16; total];
-        let mut rgb = vec![[0u16; 3]; total];
-        let mut key = vec![0u32; total];
-        let mut fill = start.clone();
-        for (k, f) in self.per_frame.into_iter().enumerate() {
-            for (p, c, b) in f {
-                let o = fill[p as usize];
-                fill[p as usize] += 1;
-                frame[o] = k as u16;
-                rgb[o] = c;
-                key[o] = b;
-            }
-        }
+        let (start, frame, rgb, key) = transpose(&self.per_frame, self.grid.len());
         Observations {
             grid: self.grid,
             frames: self.frames,
@@ -415,6 +403,64 @@ impl ObservationBuilder {
             saturation: f64::from(self.saturation),
         }
     }
+}
+
+/// Per-pixel storage (CSR: `start`, then frame id, colour and bin key per observation,
+/// a pixel's observations in frame order) from per-frame lists sorted by pixel.
+#[allow(clippy::type_complexity)]
+fn transpose(
+    per_frame: &[FrameObs],
+    npx: usize,
+) -> (Vec<usize>, Vec<u16>, Vec<[u16; 3]>, Vec<u32>) {
+    let mut start = vec![0usize; npx + 1];
+    for f in per_frame {
+        for (p, _, _) in f {
+            start[*p as usize + 1] += 1;
+        }
+    }
+    for i in 0..npx {
+        start[i + 1] += start[i];
+    }
+    let total = start[npx];
+    let mut frame = vec![0u16; total];
+    let mut rgb = vec![[0u16; 3]; total];
+    let mut key = vec![0u32; total];
+    // The scatter is the pass's one serial step over every observation (seconds on
+    // the paper preset): it runs over blocks of pixels in parallel, each block with
+    // its own slices of the output. A frame's observations are sorted by pixel (they
+    // are gathered row by row), so a block finds its part of each frame by bisection.
+    let blocks = rayon::current_num_threads().max(1) * 8;
+    let step = npx.div_ceil(blocks).max(1);
+    let mut parts = Vec::with_capacity(blocks);
+    let (mut f_rest, mut c_rest, mut k_rest) =
+        (frame.as_mut_slice(), rgb.as_mut_slice(), key.as_mut_slice());
+    for p0 in (0..npx).step_by(step) {
+        let p1 = (p0 + step).min(npx);
+        let n = start[p1] - start[p0];
+        let (f, fr) = std::mem::take(&mut f_rest).split_at_mut(n);
+        let (c, cr) = std::mem::take(&mut c_rest).split_at_mut(n);
+        let (k, kr) = std::mem::take(&mut k_rest).split_at_mut(n);
+        (f_rest, c_rest, k_rest) = (fr, cr, kr);
+        parts.push((p0, p1, f, c, k));
+    }
+    let start_ref = &start;
+    parts.into_par_iter().for_each(|(p0, p1, f, c, k)| {
+        let base = start_ref[p0];
+        let mut fill: Vec<usize> = start_ref[p0..p1].iter().map(|s| s - base).collect();
+        for (fi, obs) in per_frame.iter().enumerate() {
+            let lo = obs.partition_point(|o| (o.0 as usize) < p0);
+            let hi = obs.partition_point(|o| (o.0 as usize) < p1);
+            for &(p, cc, b) in &obs[lo..hi] {
+                let slot = &mut fill[p as usize - p0];
+                let o = *slot;
+                *slot += 1;
+                f[o] = fi as u16;
+                c[o] = cc;
+                k[o] = b;
+            }
+        }
+    });
+    (start, frame, rgb, key)
 }
 
 /// Exact Ward observations for tests: every pixel of `grid` seen by every frame,
@@ -469,6 +515,34 @@ pub(crate) fn rendered(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn transpose_matches_a_serial_scatter() {
+        // Frames seeing different, overlapping pixel ranges, some pixels unseen.
+        let npx = 1000;
+        let per_frame: Vec<FrameObs> = (0..7u32)
+            .map(|f| {
+                (f * 90..(f * 90 + 400).min(npx as u32))
+                    .filter(|p| (p + f) % 3 != 0)
+                    .map(|p| (p, [p as u16, f as u16, 7], p * 10 + f))
+                    .collect()
+            })
+            .collect();
+        let (start, frame, rgb, key) = transpose(&per_frame, npx);
+        let mut expected: Vec<Vec<(u16, [u16; 3], u32)>> = vec![Vec::new(); npx];
+        for (f, obs) in per_frame.iter().enumerate() {
+            for &(p, c, k) in obs {
+                expected[p as usize].push((f as u16, c, k));
+            }
+        }
+        assert_eq!(start.len(), npx + 1);
+        for (p, e) in expected.iter().enumerate() {
+            let got: Vec<_> = (start[p]..start[p + 1])
+                .map(|o| (frame[o], rgb[o], key[o]))
+                .collect();
+            assert_eq!(&got, e, "pixel {p}");
+        }
+    }
 
     #[test]
     fn fast_atan2_is_within_two_milliradians() {

@@ -19,6 +19,7 @@ use std::path::Path;
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use svbrdf_core::image::ImageF32;
 use svbrdf_core::maps::{write_exr, write_png, Encoding, PngDepth};
@@ -87,23 +88,18 @@ struct MapSpec<'a> {
     /// Encoding of the PNG (the EXR is always linear).
     enc: Encoding,
     depth: PngDepth,
-    meaning: &'a str,
+    meaning: String,
     /// The PNG holds the values times this (for maps whose range is not [0, 1]).
     png_scale: f32,
 }
 
 /// Write `maps/NAME.exr` (linear) and `maps/NAME.png`, both with metadata, and list them.
 /// The normal map's PNG holds `(n + 1) / 2`.
-fn write_map(
-    dir: &Path,
-    files: &mut Vec<MapFile>,
-    m: MapSpec,
-    img: &ImageF32,
-) -> Result<(), FitError> {
+fn write_map(dir: &Path, m: &MapSpec, img: &ImageF32) -> Result<[MapFile; 2], FitError> {
     let meta = |enc: Encoding| {
         vec![
             ("map", m.name.to_string()),
-            ("meaning", m.meaning.to_string()),
+            ("meaning", m.meaning.clone()),
             ("model", m.model.to_string()),
             ("encoding", enc.as_str().to_string()),
         ]
@@ -125,25 +121,26 @@ fn write_map(
     let png = format!("maps/{}.png", m.name);
     write_png(&dir.join(&png), &png_img, m.enc, m.depth, &meta(m.enc))?;
     let scaled = if m.png_scale == 1.0 {
-        m.meaning.to_string()
+        m.meaning.clone()
     } else {
         format!("{}, multiplied by {}", m.meaning, m.png_scale)
     };
-    files.push(MapFile {
-        file: exr,
-        encoding: Encoding::Linear,
-        meaning: m.meaning.to_string(),
-    });
-    files.push(MapFile {
-        file: png,
-        encoding: m.enc,
-        meaning: if m.name == "normal" {
-            format!("{}; stored as (n + 1) / 2", m.meaning)
-        } else {
-            scaled
+    Ok([
+        MapFile {
+            file: exr,
+            encoding: Encoding::Linear,
+            meaning: m.meaning.clone(),
         },
-    });
-    Ok(())
+        MapFile {
+            file: png,
+            encoding: m.enc,
+            meaning: if m.name == "normal" {
+                format!("{}; stored as (n + 1) / 2", m.meaning)
+            } else {
+                scaled
+            },
+        },
+    ])
 }
 
 /// Write the maps, the strip and the manifest into `dir` (which must exist).
@@ -159,28 +156,34 @@ pub fn write_outputs(
         +Y along plane +y (image up, OpenGL convention), +Z out of the surface; PNG stores \
         (n + 1) / 2 linearly"
         .to_string();
-    let mut files = Vec::new();
     let p = &maps.params;
     let model = summary.model.as_str();
-    let mut put =
-        |name: &str, img: &ImageF32, enc: Encoding, depth: PngDepth, meaning: &str, scale: f32| {
-            write_map(
-                dir,
-                &mut files,
-                MapSpec {
-                    name,
-                    model,
-                    enc,
-                    depth,
-                    meaning,
-                    png_scale: scale,
-                },
-                img,
-            )
-        };
+    // The maps are built first and written in parallel: PNG compression of a
+    // 4-megapixel map takes about a second, and the writes are independent.
+    let mut jobs: Vec<(MapSpec, ImageF32)> = Vec::new();
+    let mut put = |name: &'static str,
+                   img: ImageF32,
+                   enc: Encoding,
+                   depth: PngDepth,
+                   meaning: &str,
+                   scale: f32|
+     -> Result<(), FitError> {
+        jobs.push((
+            MapSpec {
+                name,
+                model,
+                enc,
+                depth,
+                meaning: meaning.to_string(),
+                png_scale: scale,
+            },
+            img,
+        ));
+        Ok(())
+    };
     put(
         "diffuse",
-        &plane(maps, |i| p[i].rho_d.map(|v| v as f32)),
+        plane(maps, |i| p[i].rho_d.map(|v| v as f32)),
         Encoding::Srgb,
         PngDepth::Eight,
         "diffuse albedo rho_d",
@@ -188,7 +191,7 @@ pub fn write_outputs(
     )?;
     put(
         "specular",
-        &plane(maps, |i| p[i].rho_s.map(|v| v as f32)),
+        plane(maps, |i| p[i].rho_s.map(|v| v as f32)),
         Encoding::Srgb,
         PngDepth::Eight,
         "specular albedo rho_s",
@@ -196,7 +199,7 @@ pub fn write_outputs(
     )?;
     put(
         "roughness",
-        &plane(maps, |i| [p[i].alpha_x as f32, p[i].alpha_y as f32, 0.0]),
+        plane(maps, |i| [p[i].alpha_x as f32, p[i].alpha_y as f32, 0.0]),
         Encoding::Linear,
         PngDepth::Sixteen,
         "roughness: R = alpha_x (along plane x), G = alpha_y (along plane y)",
@@ -208,7 +211,7 @@ pub fn write_outputs(
     });
     put(
         "normal",
-        &normal,
+        normal,
         Encoding::Linear,
         PngDepth::Eight,
         &normal_convention,
@@ -216,7 +219,7 @@ pub fn write_outputs(
     )?;
     put(
         "average",
-        &plane(maps, |i| maps.average[i].map(|v| v as f32)),
+        plane(maps, |i| maps.average[i].map(|v| v as f32)),
         Encoding::Srgb,
         PngDepth::Eight,
         "mean observed colour (linear radiance)",
@@ -224,7 +227,7 @@ pub fn write_outputs(
     )?;
     put(
         "residual",
-        &plane(maps, |i| [maps.residual[i]; 3]),
+        plane(maps, |i| [maps.residual[i]; 3]),
         Encoding::Linear,
         PngDepth::Sixteen,
         "RMS re-rendering error per pixel (linear radiance)",
@@ -233,7 +236,7 @@ pub fn write_outputs(
     let max_cov = maps.coverage.iter().copied().max().unwrap_or(1).max(1) as f32;
     put(
         "coverage",
-        &plane(maps, |i| [maps.coverage[i] as f32; 3]),
+        plane(maps, |i| [maps.coverage[i] as f32; 3]),
         Encoding::Linear,
         PngDepth::Eight,
         "observations per pixel (0: BRDF filled from the nearest observed cluster)",
@@ -245,26 +248,6 @@ pub fn write_outputs(
     let colours: Vec<[f32; 3]> = (0..n)
         .map(|_| [0; 3].map(|_| rng.random_range(0.05f32..0.9)))
         .collect();
-    let ids = plane(maps, |i| [maps.cluster[i] as f32; 3]);
-    write_exr(
-        &mdir.join("clusters.exr"),
-        &ids,
-        &["R", "G", "B"],
-        &[
-            ("map", "clusters".into()),
-            ("meaning", "final cluster id".into()),
-        ],
-    )?;
-    write_png(
-        &mdir.join("clusters.png"),
-        &plane(maps, |i| colours[maps.cluster[i] as usize]),
-        Encoding::Srgb,
-        PngDepth::Eight,
-        &[
-            ("map", "clusters".into()),
-            ("meaning", "final clusters, random colours".into()),
-        ],
-    )?;
     // Initial (k-means) clusters, the starting point of the recursive splits.
     let k0 = maps.clusters.iter().map(|c| c.initial).max().unwrap_or(0) as usize + 1;
     let initial_colours: Vec<[f32; 3]> = (0..k0)
@@ -275,43 +258,77 @@ pub fn write_outputs(
             .get(maps.cluster[i] as usize)
             .map_or(0, |c| c.initial as usize)
     };
-    write_png(
-        &mdir.join("initial_clusters.png"),
-        &plane(maps, |i| initial_colours[initial_of(i)]),
-        Encoding::Srgb,
-        PngDepth::Eight,
-        &[
-            ("map", "initial_clusters".into()),
-            ("meaning", "initial k-means clusters, random colours".into()),
-        ],
-    )?;
-    files.push(MapFile {
-        file: "maps/initial_clusters.png".into(),
-        encoding: Encoding::Srgb,
-        meaning: "initial k-means clusters in random colours (ids: clusters.json, field initial)"
-            .into(),
-    });
-    files.push(MapFile {
-        file: "maps/clusters.exr".into(),
-        encoding: Encoding::Linear,
-        meaning: "final cluster id (exact integers)".into(),
-    });
-    files.push(MapFile {
-        file: "maps/clusters.png".into(),
-        encoding: Encoding::Srgb,
-        meaning: "final clusters in random colours".into(),
-    });
-    write_png(
-        &dir.join("rerender.png"),
-        strip,
-        Encoding::Srgb,
-        PngDepth::Eight,
-        &[(
-            "meaning",
-            "top: observed frames rectified onto the plane; bottom: re-rendered from the maps"
-                .into(),
-        )],
-    )?;
+    let write_clusters = || -> Result<Vec<MapFile>, FitError> {
+        write_exr(
+            &mdir.join("clusters.exr"),
+            &plane(maps, |i| [maps.cluster[i] as f32; 3]),
+            &["R", "G", "B"],
+            &[
+                ("map", "clusters".into()),
+                ("meaning", "final cluster id".into()),
+            ],
+        )?;
+        write_png(
+            &mdir.join("clusters.png"),
+            &plane(maps, |i| colours[maps.cluster[i] as usize]),
+            Encoding::Srgb,
+            PngDepth::Eight,
+            &[
+                ("map", "clusters".into()),
+                ("meaning", "final clusters, random colours".into()),
+            ],
+        )?;
+        write_png(
+            &mdir.join("initial_clusters.png"),
+            &plane(maps, |i| initial_colours[initial_of(i)]),
+            Encoding::Srgb,
+            PngDepth::Eight,
+            &[
+                ("map", "initial_clusters".into()),
+                ("meaning", "initial k-means clusters, random colours".into()),
+            ],
+        )?;
+        write_png(
+            &dir.join("rerender.png"),
+            strip,
+            Encoding::Srgb,
+            PngDepth::Eight,
+            &[(
+                "meaning",
+                "top: observed frames rectified onto the plane; bottom: re-rendered from the maps"
+                    .into(),
+            )],
+        )?;
+        Ok(vec![
+            MapFile {
+                file: "maps/initial_clusters.png".into(),
+                encoding: Encoding::Srgb,
+                meaning:
+                    "initial k-means clusters in random colours (ids: clusters.json, field initial)"
+                        .into(),
+            },
+            MapFile {
+                file: "maps/clusters.exr".into(),
+                encoding: Encoding::Linear,
+                meaning: "final cluster id (exact integers)".into(),
+            },
+            MapFile {
+                file: "maps/clusters.png".into(),
+                encoding: Encoding::Srgb,
+                meaning: "final clusters in random colours".into(),
+            },
+        ])
+    };
+    let (written, extra) = rayon::join(
+        || {
+            jobs.par_iter()
+                .map(|(m, img)| write_map(dir, m, img))
+                .collect::<Result<Vec<_>, FitError>>()
+        },
+        write_clusters,
+    );
+    let mut files: Vec<MapFile> = written?.into_iter().flatten().collect();
+    files.extend(extra?);
     let manifest = FitManifest {
         format: FIT_FORMAT.into(),
         version: 1,
