@@ -118,6 +118,11 @@ pub struct FitConfig {
     pub lobe_refits: usize,
     /// Pixels of a cluster (spread evenly) whose observations feed its lobe refit.
     pub refit_lobe_pixels: usize,
+    /// Between lobe refits, refine again only the pixels of clusters whose lobe the
+    /// last refit moved (by more than 2%), except in the last pass, which refines every
+    /// pixel so that each gets all of `refine_iterations`. False: every pass refines
+    /// every pixel.
+    pub refine_moved_only: bool,
     /// Frames shown in the re-rendering strip.
     pub strip_frames: usize,
     /// Fit a Lambertian material only (`rho_s = 0` everywhere): the baseline that
@@ -159,6 +164,7 @@ impl Default for FitConfig {
             refine_rounds: 1,
             lobe_refits: 3,
             refit_lobe_pixels: 4000,
+            refine_moved_only: true,
             refine_robust: 1.0,
             refine_specular: false,
             refine_max_normal_change_deg: 3.0,

@@ -585,10 +585,11 @@ pub fn fit(
             let t = Instant::now();
             if pass > 0 {
                 progress.stage("per-pixel refinement", 1);
+                let last = pass + 1 == refits;
                 let again: Vec<bool> = covered
                     .iter()
                     .zip(&cluster)
-                    .map(|(&c, &l)| c && moved[l as usize])
+                    .map(|(&c, &l)| c && (last || !cfg.refine_moved_only || moved[l as usize]))
                     .collect();
                 refine(&ctx, &mut params, &again, anchor, iterations);
                 progress.finish();
