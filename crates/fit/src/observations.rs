@@ -412,6 +412,12 @@ fn transpose(
     per_frame: &[FrameObs],
     npx: usize,
 ) -> (Vec<usize>, Vec<u16>, Vec<[u16; 3]>, Vec<u32>) {
+    debug_assert!(
+        per_frame
+            .iter()
+            .all(|f| f.windows(2).all(|w| w[0].0 < w[1].0)),
+        "each frame's observations must be sorted by pixel"
+    );
     let mut start = vec![0usize; npx + 1];
     for f in per_frame {
         for (p, _, _) in f {

@@ -88,7 +88,7 @@ struct MapSpec<'a> {
     /// Encoding of the PNG (the EXR is always linear).
     enc: Encoding,
     depth: PngDepth,
-    meaning: String,
+    meaning: &'a str,
     /// The PNG holds the values times this (for maps whose range is not [0, 1]).
     png_scale: f32,
 }
@@ -99,7 +99,7 @@ fn write_map(dir: &Path, m: &MapSpec, img: &ImageF32) -> Result<[MapFile; 2], Fi
     let meta = |enc: Encoding| {
         vec![
             ("map", m.name.to_string()),
-            ("meaning", m.meaning.clone()),
+            ("meaning", m.meaning.to_string()),
             ("model", m.model.to_string()),
             ("encoding", enc.as_str().to_string()),
         ]
@@ -121,7 +121,7 @@ fn write_map(dir: &Path, m: &MapSpec, img: &ImageF32) -> Result<[MapFile; 2], Fi
     let png = format!("maps/{}.png", m.name);
     write_png(&dir.join(&png), &png_img, m.enc, m.depth, &meta(m.enc))?;
     let scaled = if m.png_scale == 1.0 {
-        m.meaning.clone()
+        m.meaning.to_string()
     } else {
         format!("{}, multiplied by {}", m.meaning, m.png_scale)
     };
@@ -129,7 +129,7 @@ fn write_map(dir: &Path, m: &MapSpec, img: &ImageF32) -> Result<[MapFile; 2], Fi
         MapFile {
             file: exr,
             encoding: Encoding::Linear,
-            meaning: m.meaning.clone(),
+            meaning: m.meaning.to_string(),
         },
         MapFile {
             file: png,
@@ -154,8 +154,7 @@ pub fn write_outputs(
     std::fs::create_dir_all(&mdir).map_err(|e| svbrdf_core::CoreError::io(&mdir, e))?;
     let normal_convention = "tangent space = plane frame: +X along plane +x (image right), \
         +Y along plane +y (image up, OpenGL convention), +Z out of the surface; PNG stores \
-        (n + 1) / 2 linearly"
-        .to_string();
+        (n + 1) / 2 linearly";
     let p = &maps.params;
     let model = summary.model.as_str();
     // The maps are built first and written in parallel: PNG compression of a
@@ -165,21 +164,19 @@ pub fn write_outputs(
                    img: ImageF32,
                    enc: Encoding,
                    depth: PngDepth,
-                   meaning: &str,
-                   scale: f32|
-     -> Result<(), FitError> {
+                   meaning: &'static str,
+                   scale: f32| {
         jobs.push((
             MapSpec {
                 name,
                 model,
                 enc,
                 depth,
-                meaning: meaning.to_string(),
+                meaning,
                 png_scale: scale,
             },
             img,
-        ));
-        Ok(())
+        ))
     };
     put(
         "diffuse",
@@ -188,7 +185,7 @@ pub fn write_outputs(
         PngDepth::Eight,
         "diffuse albedo rho_d",
         1.0,
-    )?;
+    );
     put(
         "specular",
         plane(maps, |i| p[i].rho_s.map(|v| v as f32)),
@@ -196,7 +193,7 @@ pub fn write_outputs(
         PngDepth::Eight,
         "specular albedo rho_s",
         1.0,
-    )?;
+    );
     put(
         "roughness",
         plane(maps, |i| [p[i].alpha_x as f32, p[i].alpha_y as f32, 0.0]),
@@ -204,7 +201,7 @@ pub fn write_outputs(
         PngDepth::Sixteen,
         "roughness: R = alpha_x (along plane x), G = alpha_y (along plane y)",
         1.0,
-    )?;
+    );
     let normal = plane(maps, |i| {
         let n = p[i].normal();
         [n.x as f32, n.y as f32, n.z as f32]
@@ -214,9 +211,9 @@ pub fn write_outputs(
         normal,
         Encoding::Linear,
         PngDepth::Eight,
-        &normal_convention,
+        normal_convention,
         1.0,
-    )?;
+    );
     put(
         "average",
         plane(maps, |i| maps.average[i].map(|v| v as f32)),
@@ -224,7 +221,7 @@ pub fn write_outputs(
         PngDepth::Eight,
         "mean observed colour (linear radiance)",
         1.0,
-    )?;
+    );
     put(
         "residual",
         plane(maps, |i| [maps.residual[i]; 3]),
@@ -232,7 +229,7 @@ pub fn write_outputs(
         PngDepth::Sixteen,
         "RMS re-rendering error per pixel (linear radiance)",
         10.0,
-    )?;
+    );
     let max_cov = maps.coverage.iter().copied().max().unwrap_or(1).max(1) as f32;
     put(
         "coverage",
@@ -241,7 +238,7 @@ pub fn write_outputs(
         PngDepth::Eight,
         "observations per pixel (0: BRDF filled from the nearest observed cluster)",
         1.0 / max_cov,
-    )?;
+    );
     // Clusters: ids in the EXR, random but fixed colours in the PNG.
     let n = maps.cluster.iter().copied().max().unwrap_or(0) as usize + 1;
     let mut rng = ChaCha8Rng::seed_from_u64(0x5eed);
@@ -337,7 +334,7 @@ pub fn write_outputs(
         px_per_cm: maps.grid.px_per_cm,
         width: maps.grid.width,
         height: maps.grid.height,
-        normal_convention,
+        normal_convention: normal_convention.to_string(),
         albedo_units: match summary.light_intensity_source {
             crate::IntensitySource::Normalised => {
                 "relative: the light intensity was unknown and normalised (see light_intensity)"
