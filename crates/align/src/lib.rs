@@ -188,6 +188,18 @@ pub struct AlignInputs {
     pub second_video: Option<PathBuf>,
 }
 
+impl AlignInputs {
+    /// Every file and folder given as input.
+    pub fn paths(&self) -> Vec<PathBuf> {
+        [&self.video, &self.photos, &self.second_video]
+            .into_iter()
+            .flatten()
+            .cloned()
+            .chain(std::iter::once(self.reference.clone()))
+            .collect()
+    }
+}
+
 struct Timer(Vec<(String, f64)>, Instant);
 
 impl Timer {
@@ -206,6 +218,17 @@ pub fn align(
     progress: &dyn Progress,
 ) -> Result<AlignSummary, AlignError> {
     cfg.validate()?;
+    // Refuse an output that would delete an input or needs --overwrite now, not after
+    // minutes of work.
+    if out.exists() && !overwrite {
+        return Err(svbrdf_core::CoreError::invalid(
+            "output folder",
+            out.display(),
+            "a path that does not exist yet (or pass --overwrite)",
+        )
+        .into());
+    }
+    svbrdf_core::fsutil::check_output_spares_inputs(out, &inputs.paths())?;
     let dict = svbrdf_cv::aruco::Dictionary::from_name(&cfg.camera.marker_dictionary)?;
     let mut timer = Timer(Vec::new(), Instant::now());
 

@@ -59,7 +59,7 @@ pub fn write(
     progress: &dyn Progress,
 ) -> Result<AlignSummary, AlignError> {
     let t0 = std::time::Instant::now();
-    let staging = StagingDir::new(out, overwrite)?;
+    let staging = StagingDir::new(out, overwrite, &inputs.paths())?;
     let dir = staging.path();
     let region = cfg.region.unwrap_or_else(|| rf.marker_region());
     // Default resolution: half of the frames' median sampling density on the plane.

@@ -38,7 +38,11 @@ pub fn run_import(a: &ImportArgs) -> Result<PathBuf> {
             use_light_power: a.use_light_power,
         },
     )?;
-    let staging = svbrdf_core::fsutil::StagingDir::new(&a.out, a.overwrite)?;
+    let staging = svbrdf_core::fsutil::StagingDir::new(
+        &a.out,
+        a.overwrite,
+        std::slice::from_ref(&a.materialgan),
+    )?;
     cap.save(staging.path())?;
     let out = staging.commit()?;
     say!(
@@ -59,6 +63,7 @@ pub fn run_import(a: &ImportArgs) -> Result<PathBuf> {
 }
 
 #[derive(Args, Clone)]
+#[command(allow_negative_numbers = true)]
 pub struct EvalArgs {
     /// Registered capture (a folder holding capture.json).
     #[arg(long)]

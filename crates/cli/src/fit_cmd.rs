@@ -10,6 +10,7 @@ use svbrdf_core::image::FrameImage;
 use svbrdf_fit::{FitConfig, FitError, FrameSource};
 
 #[derive(Args, Clone)]
+#[command(allow_negative_numbers = true)]
 pub struct FitArgs {
     /// Registered capture: a folder holding capture.json (from `svbrdf align`, the
     /// simulator's `registered/`, or any tool writing the documented format).
@@ -52,7 +53,7 @@ pub struct FitOptions {
 
 pub fn fit_config(a: &FitOptions) -> Result<FitConfig> {
     let mut c: FitConfig = match &a.config {
-        Some(p) => svbrdf_core::fsutil::read_json(p)?,
+        Some(p) => svbrdf_core::fsutil::read_json_settings(p)?,
         None => FitConfig::default(),
     };
     c.model = match a.model.as_str() {
@@ -104,6 +105,9 @@ impl FrameSource for CvFrames {
 
 pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
     let cfg = fit_config(&a.options)?;
+    if let Some(c) = &a.options.config {
+        svbrdf_core::fsutil::check_output_spares_inputs(&a.out, std::slice::from_ref(c))?;
+    }
     svbrdf_cv::set_single_threaded()?;
     crate::alloc::retain_freed_pages(false);
     let progress = crate::progress::Bars::new();

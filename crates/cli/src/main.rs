@@ -146,7 +146,7 @@ struct AlignArgs {
     out: PathBuf,
     /// Output region on the plane as x_min,x_max,y_min,y_max in cm (default: bounded
     /// by the markers' inner corners).
-    #[arg(long, value_delimiter = ',', num_args = 4)]
+    #[arg(long, value_delimiter = ',', num_args = 1..=4, allow_hyphen_values = true)]
     region: Option<Vec<f64>>,
     /// Output resolution in pixels per cm (default: half the frames' sampling density).
     #[arg(long)]
@@ -222,6 +222,11 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
         c.camera = svbrdf_align::CameraDescription::load(p)?;
     }
     if let Some(r) = &a.region {
+        anyhow::ensure!(
+            r.len() == 4,
+            "invalid region {} (expected four numbers in cm: x_min,x_max,y_min,y_max)",
+            r.iter().map(f64::to_string).collect::<Vec<_>>().join(",")
+        );
         c.region = Some(svbrdf_core::plane::Region {
             x_min: r[0],
             x_max: r[1],
@@ -268,6 +273,8 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
     }
     if let Some(p) = &a.second.second_camera {
         // Missing fields take the paper's two-camera values, not the flash phone's.
+        // Unknown keys are refused (a typo must not fall back to a default).
+        svbrdf_core::fsutil::read_json_settings::<svbrdf_align::CameraDescription>(p)?;
         let raw: serde_json::Value = svbrdf_core::fsutil::read_json(p)?;
         let mut merged = serde_json::to_value(&c.second_camera)?;
         if let (Some(m), Some(r)) = (merged.as_object_mut(), raw.as_object()) {
@@ -295,6 +302,12 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
 
 fn run_align(a: &AlignArgs) -> Result<()> {
     let cfg = align_config(a)?;
+    let settings: Vec<PathBuf> = [&a.camera, &a.second.second_camera]
+        .into_iter()
+        .flatten()
+        .cloned()
+        .collect();
+    svbrdf_core::fsutil::check_output_spares_inputs(&a.out, &settings)?;
     svbrdf_cv::set_single_threaded()?;
     alloc::retain_freed_pages(true);
     let progress = progress::Bars::new();

@@ -38,6 +38,55 @@ pub struct ExportArgs {
     pub overwrite: bool,
 }
 
+/// The `run.json` of a run folder, if it holds one of ours.
+pub fn run_record(dir: &Path) -> Option<Value> {
+    let p = dir.join(RUN_FILE);
+    if !p.is_file() {
+        return None;
+    }
+    let v: Value = svbrdf_core::fsutil::read_json(&p).ok()?;
+    (v["format"] == RUN_FORMAT).then_some(v)
+}
+
+/// Refuse a run folder whose last `run` did not finish: its stage folders may mix two
+/// captures. (Records written before `complete` existed count as finished.)
+pub fn refuse_unfinished_run(dir: &Path) -> Result<()> {
+    if let Some(r) = run_record(dir) {
+        if r["complete"] == json!(false) {
+            let missing: Vec<&str> = ["align", "fit", "export"]
+                .into_iter()
+                .filter(|s| r["stages"][*s].is_null())
+                .collect();
+            anyhow::bail!(
+                "unfinished run folder {} (its last `svbrdf run` stopped before {}; expected a finished run: run the same `svbrdf run ... --out {}` again to resume it)",
+                dir.display(),
+                if missing.is_empty() { "the report".to_string() } else { format!("finishing {}", missing.join(", ")) },
+                dir.display()
+            );
+        }
+    }
+    Ok(())
+}
+
+/// Refuse the `maps/` of a run folder whose fit stage has not finished.
+fn refuse_unfinished_maps(maps: &Path) -> Result<()> {
+    let resolved = svbrdf_core::fsutil::resolve(maps);
+    if resolved.file_name().is_some_and(|n| n == MAPS) {
+        if let Some(run) = resolved.parent() {
+            if let Some(r) = run_record(run) {
+                if r["complete"] == json!(false) && r["stages"]["fit"].is_null() {
+                    anyhow::bail!(
+                        "unfinished maps {} (the `svbrdf run` writing them stopped before the fit finished; expected finished maps: run the same `svbrdf run ... --out {}` again to resume it)",
+                        maps.display(),
+                        run.display()
+                    );
+                }
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Read a fit output folder: the exportable maps and the light intensity the fit used.
 pub fn load_fit(dir: &Path) -> Result<(MaterialMaps, [f64; 3])> {
     let m = svbrdf_fit::output::read_maps(dir)
@@ -74,6 +123,13 @@ fn export_config(a: &ExportArgs) -> ExportConfig {
 pub fn run_export(a: &ExportArgs) -> Result<svbrdf_export::ExportSummary> {
     let cfg = export_config(a);
     cfg.validate()?;
+    for sub in ["gltf", "mitsuba"] {
+        svbrdf_core::fsutil::check_output_spares_inputs(
+            &a.out.join(sub),
+            std::slice::from_ref(&a.maps),
+        )?;
+    }
+    refuse_unfinished_maps(&a.maps)?;
     let maps = load_maps(&a.maps)?;
     let s = svbrdf_export::export_all(&maps, &cfg, &a.out, a.overwrite)?;
     say!("wrote {} (glTF 2.0)", s.gltf.display());
@@ -107,7 +163,7 @@ pub struct RunArgs {
     pub out: PathBuf,
     /// Output region on the plane as x_min,x_max,y_min,y_max in cm (default: bounded
     /// by the markers' inner corners).
-    #[arg(long, value_delimiter = ',', num_args = 4)]
+    #[arg(long, value_delimiter = ',', num_args = 1..=4, allow_hyphen_values = true)]
     pub region: Option<Vec<f64>>,
     /// Map resolution in pixels per cm (default: half the frames' sampling density).
     #[arg(long)]
@@ -332,6 +388,42 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         "stages": {},
     });
     let old_stage = |name: &str| previous.as_ref().map(|p| p["stages"][name].clone());
+    // Which stages can be reused, decided before anything changes on disk.
+    let mut plan = Vec::new();
+    let mut chain = fingerprint(&json!([record["svbrdf"], record["inputs"]]));
+    for (name, dir) in [
+        ("align", &align_args.out),
+        ("fit", &fit_args.out),
+        ("export", &export_args.out),
+    ] {
+        let fp = fingerprint(&json!([chain, record["settings"][name]]));
+        let skipped = name == "align" && a.capture.is_some();
+        let reusable = skipped
+            || (!a.force
+                && dir.exists()
+                && old_stage(name).is_some_and(|s| s["fingerprint"] == json!(fp)));
+        plan.push((name, fp.clone(), reusable));
+        chain = fp;
+    }
+    // Before the first stage changes anything, the record says the folder is
+    // unfinished and keeps only the stages that stay valid: an interruption from here
+    // on leaves a folder that `view`, `export` and the report refuse until `run`
+    // resumes it. The old report (of the old maps) goes at once.
+    for (name, _, reusable) in &plan {
+        if *reusable && !(*name == "align" && a.capture.is_some()) {
+            record["stages"][*name] = old_stage(name).unwrap_or(Value::Null);
+        }
+    }
+    record["complete"] = json!(false);
+    for d in [&align_args.out, &fit_args.out, &export_args.out] {
+        svbrdf_core::fsutil::remove_stale_siblings(d);
+    }
+    write_record(&record_path, &record)?;
+    let old_report = a.out.join("report.html");
+    if old_report.exists() {
+        std::fs::remove_file(&old_report)
+            .with_context(|| format!("removing the old {}", old_report.display()))?;
+    }
     let mut prev_fp = fingerprint(&json!([record["svbrdf"], record["inputs"]]));
     type Stage<'a> = (&'a str, &'a Path, Box<dyn Fn() -> Result<()> + 'a>);
     let stages: Vec<Stage> = vec![
@@ -416,6 +508,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
     let t0 = Instant::now();
     let report = svbrdf_export::report::write_report(&a.out, Some(&maps))?;
     record["report_seconds"] = json!(t0.elapsed().as_secs_f64());
+    record["complete"] = json!(true);
     write_record(&record_path, &record)?;
     say!("wrote {}", report.display());
     say!();
@@ -515,7 +608,7 @@ pub fn run_markers(a: &MarkersArgs) -> Result<()> {
         .collect::<Result<_, _>>()?;
     let svg_text = svg(&cells, size_mm, dict.name())?;
     let img = raster(&cells, size_mm)?;
-    let staging = svbrdf_core::fsutil::StagingDir::new(&a.out, a.overwrite)?;
+    let staging = svbrdf_core::fsutil::StagingDir::new(&a.out, a.overwrite, &[])?;
     let dir = staging.path();
     std::fs::write(dir.join("markers.svg"), svg_text)
         .with_context(|| format!("writing {}", dir.join("markers.svg").display()))?;

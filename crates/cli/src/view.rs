@@ -50,6 +50,11 @@ const ASSETS: &[(&str, &str, &[u8])] = &[
 
 /// The folder holding `material.gltf` for a run folder or a glTF folder.
 pub fn gltf_dir(dir: &Path) -> Result<PathBuf> {
+    // A run folder, or the export/gltf folder of one: refuse it while unfinished.
+    let resolved = svbrdf_core::fsutil::resolve(dir);
+    for run in resolved.ancestors().take(3) {
+        crate::run_cmd::refuse_unfinished_run(run)?;
+    }
     for d in [dir.join("export").join("gltf"), dir.to_path_buf()] {
         if d.join(svbrdf_export::gltf::GLTF_FILE).is_file() {
             return Ok(d);
@@ -96,15 +101,54 @@ fn respond(stream: &mut TcpStream, status: &str, kind: &str, body: &[u8]) -> std
     stream.shutdown(std::net::Shutdown::Write)
 }
 
+/// The longest request line and header block read, bytes; longer requests get 431.
+const MAX_REQUEST_BYTES: u64 = 16 * 1024;
+/// The most time one request may take to arrive.
+const REQUEST_TIMEOUT: std::time::Duration = std::time::Duration::from_secs(10);
+
+/// A file inside `dir` that may be served: a plain name, and after resolving links a
+/// regular file that is still inside `dir`.
+fn servable(dir: &Path, name: &str) -> Option<PathBuf> {
+    let plain = !name.is_empty()
+        && name
+            .chars()
+            .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'))
+        && !name.starts_with('.');
+    if !plain {
+        return None;
+    }
+    let root = std::fs::canonicalize(dir).ok()?;
+    let file = std::fs::canonicalize(dir.join(name)).ok()?;
+    (file.starts_with(&root) && std::fs::metadata(&file).ok()?.is_file()).then_some(file)
+}
+
 fn handle(mut stream: TcpStream, gltf: &Path) -> std::io::Result<()> {
-    stream.set_read_timeout(Some(std::time::Duration::from_secs(10)))?;
-    let mut reader = BufReader::new(stream.try_clone()?);
+    stream.set_read_timeout(Some(REQUEST_TIMEOUT))?;
+    let started = std::time::Instant::now();
+    // Read at most MAX_REQUEST_BYTES of request line and headers, in bounded time.
+    let mut reader = BufReader::new(std::io::Read::take(stream.try_clone()?, MAX_REQUEST_BYTES));
     let mut line = String::new();
     reader.read_line(&mut line)?;
-    // Drain the headers.
+    let mut complete = line.ends_with('\n');
     let mut h = String::new();
-    while reader.read_line(&mut h)? > 2 {
+    while complete {
         h.clear();
+        if reader.read_line(&mut h)? == 0 || !h.ends_with('\n') {
+            complete = false;
+        } else if h.len() <= 2 {
+            break;
+        }
+        if started.elapsed() > REQUEST_TIMEOUT {
+            complete = false;
+        }
+    }
+    if !complete {
+        return respond(
+            &mut stream,
+            "431 Request Header Fields Too Large",
+            "text/plain",
+            b"request too large or incomplete\n",
+        );
     }
     let mut parts = line.split_whitespace();
     let (method, target) = (parts.next().unwrap_or(""), parts.next().unwrap_or("/"));
@@ -121,14 +165,9 @@ fn handle(mut stream: TcpStream, gltf: &Path) -> std::io::Result<()> {
         return respond(&mut stream, "200 OK", kind, bytes);
     }
     if let Some(name) = path.strip_prefix("/gltf/") {
-        // Only plain file names directly inside the export folder.
-        let ok = !name.is_empty()
-            && name
-                .chars()
-                .all(|c| c.is_ascii_alphanumeric() || matches!(c, '_' | '-' | '.'))
-            && !name.starts_with('.');
-        if ok {
-            if let Ok(bytes) = std::fs::read(gltf.join(name)) {
+        // Only plain file names directly inside the export folder, links resolved.
+        if let Some(file) = servable(gltf, name) {
+            if let Ok(bytes) = std::fs::read(file) {
                 return respond(&mut stream, "200 OK", content_type(name), &bytes);
             }
         }

@@ -45,7 +45,7 @@ impl Default for CameraDescription {
 impl CameraDescription {
     /// Read and validate `camera.json`.
     pub fn load(path: &Path) -> Result<Self, CoreError> {
-        let c: Self = crate::fsutil::read_json(path)?;
+        let c: Self = crate::fsutil::read_json_settings(path)?;
         c.validate()
             .map_err(|e| CoreError::format(path, e.to_string()))?;
         Ok(c)

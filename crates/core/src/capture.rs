@@ -23,6 +23,12 @@ pub const CAPTURE_FORMAT: &str = "svbrdf-registered-capture";
 pub const CAPTURE_VERSION: u32 = 1;
 /// File name inside a capture folder.
 pub const CAPTURE_FILE: &str = "capture.json";
+/// Largest accepted `px_per_cm` (the flags' bound too): 10 um pixels.
+pub const MAX_PX_PER_CM: f64 = 1000.0;
+/// Largest accepted side of the region, cm.
+pub const MAX_REGION_CM: f64 = 500.0;
+/// Largest accepted frame side, pixels (8K video is 7680).
+pub const MAX_FRAME_SIDE: u32 = 16384;
 
 /// A registered capture (version 1).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -298,8 +304,33 @@ impl RegisteredCapture {
         self.region
             .validate()
             .map_err(|e| CoreError::format(path, e.to_string()))?;
-        if !(self.px_per_cm > 0.0 && self.px_per_cm.is_finite()) {
-            return bad(format!("px_per_cm {} (expected > 0)", self.px_per_cm));
+        if !(self.px_per_cm > 0.0 && self.px_per_cm <= MAX_PX_PER_CM) {
+            return bad(format!(
+                "px_per_cm {} (expected pixels per cm in (0, {MAX_PX_PER_CM}], as the --px-per-cm flag)",
+                self.px_per_cm
+            ));
+        }
+        if self.region.width().max(self.region.height()) > MAX_REGION_CM {
+            return bad(format!(
+                "region {:.1} x {:.1} cm (expected at most {MAX_REGION_CM} cm on a side: a flat sample, not a room)",
+                self.region.width(),
+                self.region.height()
+            ));
+        }
+        if let Some(i) = self.light_intensity {
+            if !i.iter().all(|v| v.is_finite() && *v > 0.0) {
+                return bad(format!(
+                    "light_intensity {i:?} (expected three positive finite numbers, linear value * cm^2, or null when unknown)"
+                ));
+            }
+        }
+        if self.sources.is_empty() && !self.frames.is_empty() {
+            return bad("no sources (expected at least one video or image folder)".into());
+        }
+        for (k, s) in self.sources.iter().enumerate() {
+            if s.path.trim().is_empty() {
+                return bad(format!("source {k} has an empty path (expected a video file or image folder relative to capture.json)"));
+            }
         }
         let mut ids = std::collections::HashSet::new();
         for f in &self.frames {
@@ -328,6 +359,44 @@ impl RegisteredCapture {
                     ))
                 }
                 _ => {}
+            }
+            if !(1..=MAX_FRAME_SIDE).contains(&f.width) || !(1..=MAX_FRAME_SIDE).contains(&f.height)
+            {
+                return bad(format!(
+                    "frame {}: size {}x{} (expected 1 to {MAX_FRAME_SIDE} pixels a side)",
+                    f.id, f.width, f.height
+                ));
+            }
+            let finite = |v: &[f64]| v.iter().all(|x| x.is_finite());
+            let mapping_finite = match &f.mapping {
+                FrameMapping::Pinhole {
+                    intrinsics,
+                    distortion,
+                    rotation,
+                } => {
+                    finite(&[
+                        intrinsics.fx,
+                        intrinsics.fy,
+                        intrinsics.cx,
+                        intrinsics.cy,
+                        distortion.k1,
+                        distortion.k2,
+                    ]) && rotation.iter().all(|r| finite(r))
+                        && intrinsics.fx > 0.0
+                        && intrinsics.fy > 0.0
+                }
+                FrameMapping::Homographies { subframes } => {
+                    !subframes.is_empty()
+                        && subframes.iter().all(|s| {
+                            finite(&s.rect) && s.plane_from_pixel.iter().all(|r| finite(r))
+                        })
+                }
+            };
+            if !finite(&f.camera_position) || !finite(&f.light_position) || !mapping_finite {
+                return bad(format!(
+                    "frame {}: a position or mapping is not a finite number (or a mapping is empty; expected finite cm positions, a camera with positive focal lengths or at least one sub-frame)",
+                    f.id
+                ));
             }
             if f.light_position[2] <= 0.0 || f.camera_position[2] <= 0.0 {
                 return bad(format!(
@@ -362,6 +431,14 @@ impl RegisteredCapture {
             path.parent().map(Path::to_path_buf).unwrap_or_default()
         };
         Ok((cap, dir))
+    }
+
+    /// Every file and folder this capture reads, for a capture whose `capture.json` is
+    /// in `dir`: the file itself and each source (video file or image folder).
+    pub fn input_paths(&self, dir: &Path) -> Vec<std::path::PathBuf> {
+        let mut v = vec![dir.join(CAPTURE_FILE)];
+        v.extend(self.sources.iter().map(|s| dir.join(&s.path)));
+        v
     }
 
     /// Write `capture.json` into a folder, atomically.

@@ -89,16 +89,66 @@ pub fn write_exr(
         ex::AnyChannels::sort(channels),
     );
     let image = ex::Image::from_layer(layer);
-    write_atomic(path, |w| {
+    let mut bytes = std::io::Cursor::new(Vec::new());
+    {
         use ex::WritableImage;
         image
             .write()
             // Parallel compression stores chunks in completion order; a fixed order
             // keeps output byte-identical for a given input.
             .non_parallel()
-            .to_buffered(&mut *w)
-            .map_err(|e| CoreError::format(path, format!("EXR write failed: {e}")))
+            .to_buffered(&mut bytes)
+            .map_err(|e| CoreError::format(path, format!("EXR write failed: {e}")))?;
+    }
+    let mut bytes = bytes.into_inner();
+    // The exr crate keeps custom attributes in a hash map, whose order differs per
+    // process: sort the header's attributes so that the bytes do not.
+    sort_exr_header(&mut bytes)
+        .ok_or_else(|| CoreError::format(path, "EXR write produced an unreadable header"))?;
+    write_atomic(path, |w| {
+        use std::io::Write as _;
+        w.write_all(&bytes).map_err(|e| CoreError::io(path, e))
     })
+}
+
+/// Sort the attributes of a single-part OpenEXR header by name, in place. The header's
+/// length does not change, so the offset table after it stays valid. `None` if the
+/// bytes are not a single-part EXR header.
+fn sort_exr_header(bytes: &mut [u8]) -> Option<()> {
+    const MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
+    const MULTIPART: u8 = 0x10; // bit 12 of the version field, in its second byte
+    if bytes.get(..4)? != MAGIC || bytes.get(5)? & MULTIPART != 0 {
+        return None;
+    }
+    let cstr_end = |from: usize| -> Option<usize> {
+        bytes
+            .get(from..)?
+            .iter()
+            .position(|b| *b == 0)
+            .map(|p| from + p)
+    };
+    let mut attrs: Vec<(usize, usize, usize)> = Vec::new(); // (start, name end, end)
+    let mut pos = 8;
+    while *bytes.get(pos)? != 0 {
+        let name_end = cstr_end(pos)?;
+        let type_end = cstr_end(name_end + 1)?;
+        let size_at = type_end + 1;
+        let size = i32::from_le_bytes(bytes.get(size_at..size_at + 4)?.try_into().ok()?);
+        let end = size_at + 4 + usize::try_from(size).ok()?;
+        if end > bytes.len() {
+            return None;
+        }
+        attrs.push((pos, name_end, end));
+        pos = end;
+    }
+    let mut sorted = attrs.clone();
+    sorted.sort_by(|a, b| bytes[a.0..a.1].cmp(&bytes[b.0..b.1]));
+    let header: Vec<u8> = sorted
+        .iter()
+        .flat_map(|(s, _, e)| bytes[*s..*e].iter().copied())
+        .collect();
+    bytes[8..pos].copy_from_slice(&header);
+    Some(())
 }
 
 /// Write a float image (values in [0, 1], linear) as PNG. With `Encoding::Srgb` the
@@ -251,6 +301,31 @@ pub fn read_image_linear(path: &Path, encoding: Encoding) -> Result<ImageF32, Co
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn exr_bytes_do_not_depend_on_the_attribute_order() {
+        let dir = tempfile::tempdir().unwrap();
+        let img = ImageF32::new(3, 2, 1);
+        let meta: Vec<(&str, String)> = (0..12).map(|i| ("k", format!("{i}"))).collect();
+        let meta: Vec<(String, String)> = meta
+            .iter()
+            .enumerate()
+            .map(|(i, (k, v))| (format!("{k}{i}"), v.clone()))
+            .collect();
+        let meta: Vec<(&str, String)> = meta.iter().map(|(k, v)| (k.as_str(), v.clone())).collect();
+        let mut rev = meta.clone();
+        rev.reverse();
+        let (a, b) = (dir.path().join("a.exr"), dir.path().join("b.exr"));
+        write_exr(&a, &img, &["Y"], &meta).unwrap();
+        write_exr(&b, &img, &["Y"], &rev).unwrap();
+        assert_eq!(std::fs::read(&a).unwrap(), std::fs::read(&b).unwrap());
+        // Still a valid EXR with every attribute.
+        let back = read_image_linear(&a, Encoding::Linear).unwrap();
+        assert_eq!((back.width, back.height), (3, 2));
+        let bytes = std::fs::read(&a).unwrap();
+        let needle = b"svbrdf:k11";
+        assert!(bytes.windows(needle.len()).any(|w| w == needle));
+    }
 
     #[test]
     fn png_and_exr_round_trip_with_metadata() {

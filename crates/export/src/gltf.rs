@@ -167,7 +167,7 @@ pub fn write(
 ) -> Result<PathBuf, ExportError> {
     maps.validate()?;
     cfg.validate()?;
-    let staging = StagingDir::new(out, overwrite)?;
+    let staging = StagingDir::new(out, overwrite, &[])?;
     let dir = staging.path();
     let t = textures(maps);
     let texture_files: [(&str, &ImageF32, Encoding, &str); 5] = [

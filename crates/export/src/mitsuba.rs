@@ -75,7 +75,7 @@ pub fn write(
 ) -> Result<PathBuf, ExportError> {
     maps.validate()?;
     cfg.validate()?;
-    let staging = StagingDir::new(out, overwrite)?;
+    let staging = StagingDir::new(out, overwrite, &[])?;
     let dir = staging.path();
     let (w, h) = (maps.grid.width, maps.grid.height);
     let mut diffuse = ImageF32::new(w, h, 3);

@@ -355,7 +355,7 @@ pub fn evaluate_holdout(
     cfg.fit.validate()?;
     let (capture, dir) = RegisteredCapture::load_with_folder(capture_dir)?;
     let (train, held) = split(&capture, &dir, &cfg.holdout)?;
-    let staging = svbrdf_core::fsutil::StagingDir::new(out, overwrite)?;
+    let staging = svbrdf_core::fsutil::StagingDir::new(out, overwrite, &capture.input_paths(&dir))?;
     let root = staging.path().to_path_buf();
     let train_dir = root.join("train");
     std::fs::create_dir_all(&train_dir).map_err(|e| CoreError::io(&train_dir, e))?;

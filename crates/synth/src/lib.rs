@@ -133,7 +133,11 @@ pub fn synthesize(
     progress: &dyn Progress,
 ) -> Result<SynthSummary, SynthError> {
     cfg.validate()?;
-    let staging = StagingDir::new(out, overwrite)?;
+    let inputs: Vec<std::path::PathBuf> = match &cfg.material {
+        MaterialSource::Maps(p) => vec![p.clone()],
+        MaterialSource::Procedural(_) => Vec::new(),
+    };
+    let staging = StagingDir::new(out, overwrite, &inputs)?;
     let dir = staging.path().to_path_buf();
     let mut files = Vec::new();
     let region = Region::centred(cfg.region_cm[0], cfg.region_cm[1]);
