@@ -199,7 +199,13 @@ pub fn decode_frames(
                         return;
                     }
                 }
-                Ok(None) => return,
+                Ok(None) => {
+                    // The end: refuse a video that stopped decoding early.
+                    if let Err(e) = reader.check_complete() {
+                        let _ = tx.send(Err(e.into()));
+                    }
+                    return;
+                }
                 Err(e) => {
                     let _ = tx.send(Err(e));
                     return;

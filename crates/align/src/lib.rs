@@ -326,6 +326,7 @@ pub fn align(
             )));
         }
     }
+    check_baseline(&result, &inputs.reference)?;
     output::write(
         inputs,
         cfg,
@@ -337,6 +338,38 @@ pub fn align(
         timer.0,
         progress,
     )
+}
+
+/// Smallest sweep of the flash camera accepted, cm: the extent of its positions over
+/// the kept frames. A still or barely moving phone sees the surface under one light
+/// direction, from which no BRDF can be fitted.
+pub const MIN_SWEEP_CM: f64 = 1.0;
+
+/// Refuse a capture whose flash camera barely moved.
+fn check_baseline(reg: &matching::Registration, reference: &Path) -> Result<(), AlignError> {
+    let xy: Vec<(f64, f64)> = reg
+        .poses
+        .iter()
+        .zip(&reg.frames)
+        .filter(|(_, f)| f.stream == 0)
+        .map(|(p, _)| (p.centre.x, p.centre.y))
+        .collect();
+    let extent = |v: &mut dyn Iterator<Item = f64>| {
+        let (lo, hi) = v.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+            (lo.min(x), hi.max(x))
+        });
+        hi - lo
+    };
+    let sweep = extent(&mut xy.iter().map(|p| p.0)).hypot(extent(&mut xy.iter().map(|p| p.1)));
+    if !(sweep >= MIN_SWEEP_CM) {
+        return Err(AlignError::Video(format!(
+            "the camera barely moved: over its {} registered frames the flash camera's positions span {:.2} cm (expected a sweep of at least {MIN_SWEEP_CM} cm; film 15-30 s moving the phone across the whole surface, see docs/CAPTURE.md; reference photo {})",
+            xy.len(),
+            if sweep.is_finite() { sweep } else { 0.0 },
+            reference.display()
+        )));
+    }
+    Ok(())
 }
 
 /// Synchronise the second video with the flash video and decode its frames at its

@@ -498,6 +498,10 @@ fn main() -> ExitCode {
         }
         default_hook(info);
     }));
+    // FFmpeg's own log lines (through OpenCV) would come before ours and say less.
+    if std::env::var_os("OPENCV_FFMPEG_LOGLEVEL").is_none() {
+        std::env::set_var("OPENCV_FFMPEG_LOGLEVEL", "-8");
+    }
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Synth(a) => synth_config(&a)

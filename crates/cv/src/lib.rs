@@ -11,6 +11,7 @@
 pub mod aruco;
 pub mod capture;
 pub mod features;
+pub mod probe;
 pub mod video;
 
 use std::path::{Path, PathBuf};
@@ -67,6 +68,10 @@ impl<T> Context<T> for opencv::Result<T> {
 /// Use one OpenCV thread: we parallelise across frames with rayon instead, which scales
 /// better for SIFT and detection on small images.
 pub fn set_single_threaded() -> Result<(), CvError> {
+    // OpenCV's and FFmpeg's own log lines would come before ours and say less: every
+    // failure they report reaches the user as one of our errors instead.
+    opencv::core::set_log_level(opencv::core::LogLevel::LOG_LEVEL_SILENT)
+        .ctx(|| "setting OpenCV's log level".into())?;
     opencv::core::set_num_threads(1).ctx(|| "setting OpenCV threads".into())
 }
 
@@ -189,6 +194,7 @@ pub(crate) fn mat_to_grey(mat: &Mat) -> Result<ImageU8, CvError> {
 
 /// Read a photo (JPEG, PNG, ...) as 8-bit RGB, applying its EXIF orientation.
 pub fn read_image(path: &Path) -> Result<ImageU8, CvError> {
+    check_image(path)?;
     let name = path.to_string_lossy();
     let mat = opencv::imgcodecs::imread(path, opencv::imgcodecs::IMREAD_COLOR)
         .ctx(|| format!("reading {name}"))?;
@@ -199,6 +205,62 @@ pub fn read_image(path: &Path) -> Result<ImageU8, CvError> {
         });
     }
     mat_to_rgb(&mat)
+}
+
+/// Smallest accepted image side, pixels: markers need some pixels each.
+pub const MIN_IMAGE_SIDE: u32 = 64;
+/// Largest accepted image side, pixels (a 200-megapixel phone photo is 16320 wide).
+pub const MAX_IMAGE_SIDE: u32 = 20000;
+
+/// Check an image file before OpenCV decodes it: a readable header with a plausible
+/// size, and (for JPEG and PNG) data that decode to the end. OpenCV would print
+/// libjpeg's warnings and return a partly grey image for a truncated file.
+pub fn check_image(path: &Path) -> Result<(), CvError> {
+    let bad = |m: String| CvError::File {
+        path: path.into(),
+        message: m,
+    };
+    let meta = std::fs::metadata(path).map_err(|e| bad(format!("cannot read the image ({e})")))?;
+    if !meta.is_file() {
+        return Err(bad("is not a file (expected a JPEG or PNG image)".into()));
+    }
+    if meta.len() == 0 {
+        return Err(bad(
+            "the image file is empty (expected a JPEG or PNG image)".into(),
+        ));
+    }
+    let reader = image::ImageReader::open(path)
+        .and_then(|r| r.with_guessed_format())
+        .map_err(|e| bad(format!("cannot read the image ({e})")))?;
+    let Some(format) = reader.format() else {
+        return Err(bad(
+            "is not an image format svbrdf reads (expected a JPEG or PNG image)".into(),
+        ));
+    };
+    let (w, h) = reader.into_dimensions().map_err(|e| {
+        bad(format!(
+            "cannot decode the {format:?} header ({e}; expected a JPEG or PNG image)"
+        ))
+    })?;
+    if w.min(h) < MIN_IMAGE_SIDE || w.max(h) > MAX_IMAGE_SIDE {
+        return Err(bad(format!(
+            "the image is {w}x{h} pixels (expected {MIN_IMAGE_SIDE} to {MAX_IMAGE_SIDE} pixels a side, as a phone photo)"
+        )));
+    }
+    if matches!(format, image::ImageFormat::Jpeg | image::ImageFormat::Png) {
+        let mut limits = image::Limits::default();
+        limits.max_alloc = Some(2 << 30);
+        let mut r = image::ImageReader::open(path)
+            .and_then(|r| r.with_guessed_format())
+            .map_err(|e| bad(format!("cannot read the image ({e})")))?;
+        r.limits(limits);
+        r.decode().map_err(|e| {
+            bad(format!(
+                "the {format:?} data do not decode ({e}; the file is truncated or damaged: copy it from the phone again)"
+            ))
+        })?;
+    }
+    Ok(())
 }
 
 /// Write an 8-bit RGB image as JPEG with the given quality (1-100).

@@ -27,6 +27,7 @@ pub struct VideoInfo {
 
 /// A streaming video decoder.
 pub struct VideoReader {
+    probe: crate::probe::VideoProbe,
     cap: videoio::VideoCapture,
     path: PathBuf,
     info: VideoInfo,
@@ -53,6 +54,8 @@ impl VideoReader {
                 message: "the video file is empty".into(),
             });
         }
+        let probe = crate::probe::probe_video(path)?;
+        probe.check_supported(path)?;
         let name = path.to_string_lossy().into_owned();
         let mut cap = videoio::VideoCapture::from_file(&name, videoio::CAP_FFMPEG)
             .ctx(|| format!("opening {name}"))?;
@@ -74,6 +77,7 @@ impl VideoReader {
             frame_count: get(&cap, videoio::CAP_PROP_FRAME_COUNT)?.max(0.0) as u64,
         };
         let mut reader = Self {
+            probe,
             cap,
             path: path.into(),
             info,
@@ -112,6 +116,29 @@ impl VideoReader {
     /// Stream properties.
     pub fn info(&self) -> VideoInfo {
         self.info
+    }
+
+    /// The stream's description as FFmpeg read it (codec, colour tags, frame count).
+    pub fn probe(&self) -> &crate::probe::VideoProbe {
+        &self.probe
+    }
+
+    /// Refuse a stream that ended early: after the last frame was read, fewer frames
+    /// decoded than the file holds (truncated, or damaged in the middle).
+    pub fn check_complete(&self) -> Result<(), CvError> {
+        let decoded = self.next_index;
+        if let Some(expected) = self.probe.expected_frames() {
+            let tolerance = (expected / 100).max(2);
+            if decoded + tolerance < expected {
+                return Err(CvError::File {
+                    path: self.path.clone(),
+                    message: format!(
+                        "only {decoded} of its {expected} frames decode (the file is truncated or damaged after frame {decoded}; expected a complete video: copy it from the phone again)"
+                    ),
+                });
+            }
+        }
+        Ok(())
     }
 
     /// Index of the frame the next [`read`](Self::read) returns.
