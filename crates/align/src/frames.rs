@@ -12,6 +12,9 @@ use svbrdf_cv::aruco::{detect_markers, Dictionary};
 use svbrdf_cv::features::{downscaled, sift, Features};
 use svbrdf_cv::video::{luma_frame_of, LumaFrame, VideoReader};
 
+/// Fewest frames a flash video may hold.
+pub const MIN_VIDEO_FRAMES: u64 = 10;
+
 /// Long side of the thumbnails kept for the panorama, pixels.
 const THUMB_LONG: u32 = 480;
 
@@ -174,6 +177,15 @@ pub fn decode_frames(
     progress: &dyn Progress,
 ) -> Result<Vec<FrameData>, AlignError> {
     let mut reader = VideoReader::open(video)?;
+    if let Some(n) = reader.probe().expected_frames() {
+        if n < MIN_VIDEO_FRAMES {
+            return Err(AlignError::Video(format!(
+                "{}: the video holds {n} frame{} (expected at least {MIN_VIDEO_FRAMES}: a 15-30 s sweep is hundreds; for still photos use `align --photos FOLDER`)",
+                video.display(),
+                if n == 1 { "" } else { "s" }
+            )));
+        }
+    }
     let info = reader.info();
     let step = u64::from(cfg.camera.frame_step);
     progress.stage("decode + features", info.frame_count.div_ceil(step));

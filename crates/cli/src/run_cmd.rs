@@ -577,6 +577,7 @@ pub fn print_run_summary(o: &RunOutcome) -> Result<()> {
 }
 
 #[derive(Args, Clone)]
+#[command(allow_negative_numbers = true)]
 pub struct MarkersArgs {
     /// Output folder: markers.svg (print this at 100%) and markers.png (300 dpi).
     #[arg(long)]

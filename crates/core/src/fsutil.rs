@@ -101,7 +101,18 @@ where
             ));
         }
     }
-    serde_json::from_str(&text).map_err(|e| CoreError::format(path, e.to_string()))
+    serde_json::from_str(&text).map_err(|e| {
+        // Name the key whose value is wrong: the first one that fails on its own.
+        let culprit = given.iter().find(|(k, v)| {
+            let mut one = serde_json::Map::new();
+            one.insert((*k).clone(), (*v).clone());
+            serde_json::from_value::<T>(serde_json::Value::Object(one)).is_err()
+        });
+        match culprit {
+            Some((k, _)) => CoreError::format(path, format!("{k:?}: {e}")),
+            None => CoreError::format(path, e.to_string()),
+        }
+    })
 }
 
 fn json_kind(v: &serde_json::Value) -> &'static str {

@@ -247,6 +247,14 @@ pub fn check_image(path: &Path) -> Result<(), CvError> {
             "the image is {w}x{h} pixels (expected {MIN_IMAGE_SIDE} to {MAX_IMAGE_SIDE} pixels a side, as a phone photo)"
         )));
     }
+    if format == image::ImageFormat::Jpeg {
+        let bytes = std::fs::read(path).map_err(|e| bad(format!("cannot read the image ({e})")))?;
+        if !jpeg_is_complete(&bytes) {
+            return Err(bad(
+                "the JPEG data end before the image does (the file is truncated or damaged: copy it from the phone again)".into(),
+            ));
+        }
+    }
     if matches!(format, image::ImageFormat::Jpeg | image::ImageFormat::Png) {
         let mut limits = image::Limits::default();
         limits.max_alloc = Some(2 << 30);
@@ -261,6 +269,56 @@ pub fn check_image(path: &Path) -> Result<(), CvError> {
         })?;
     }
     Ok(())
+}
+
+/// Whether a JPEG file's segments and scans run to its end-of-image marker (a
+/// truncated file stops inside a segment or a scan).
+pub fn jpeg_is_complete(b: &[u8]) -> bool {
+    if b.len() < 4 || b[0] != 0xFF || b[1] != 0xD8 {
+        return false;
+    }
+    let mut i = 2;
+    loop {
+        if i >= b.len() || b[i] != 0xFF {
+            return false;
+        }
+        while i < b.len() && b[i] == 0xFF {
+            i += 1;
+        }
+        let Some(&marker) = b.get(i) else {
+            return false;
+        };
+        i += 1;
+        match marker {
+            0xD9 => return true,
+            0xD0..=0xD7 | 0x01 => continue,
+            _ => {
+                let Some(len) = b
+                    .get(i..i + 2)
+                    .map(|l| usize::from(u16::from_be_bytes([l[0], l[1]])))
+                else {
+                    return false;
+                };
+                if len < 2 || i + len > b.len() {
+                    return false;
+                }
+                i += len;
+                if marker == 0xDA {
+                    // Entropy-coded data: up to the next marker that is neither a
+                    // stuffed 0xFF00 nor a restart marker.
+                    loop {
+                        if i + 1 >= b.len() {
+                            return false;
+                        }
+                        if b[i] == 0xFF && b[i + 1] != 0 && !(0xD0..=0xD7).contains(&b[i + 1]) {
+                            break;
+                        }
+                        i += 1;
+                    }
+                }
+            }
+        }
+    }
 }
 
 /// Write an 8-bit RGB image as JPEG with the given quality (1-100).

@@ -3,8 +3,10 @@
 
 mod align;
 mod bad_input;
+mod consistency;
 mod eval;
 mod fit;
+mod hostile;
 mod photos;
 mod run;
 mod synth;
