@@ -131,6 +131,10 @@ pub struct AlignSummary {
     pub verified_pairs: Vec<(u64, u64, usize)>,
     /// The second stream of a two-camera capture.
     pub second: Option<SecondStreamSummary>,
+    /// Doubts about the input or the result, one sentence each (also on stderr, in
+    /// run.json and in the report).
+    #[serde(default)]
+    pub warnings: Vec<String>,
 }
 
 /// What happened to the second stream of a two-camera capture.
@@ -326,7 +330,32 @@ pub fn align(
             )));
         }
     }
-    check_baseline(&result, &inputs.reference)?;
+    let sweep_cm = check_baseline(&result, &inputs.reference)?;
+    let mut warnings = Vec::new();
+    if let Some(v) = &inputs.video {
+        let probe = svbrdf_cv::probe::probe_video(v)?;
+        if probe.bit_depth > 8 {
+            warnings.push(format!(
+                "the video is {}-bit ({}); it is decoded to 8 bits per channel, so highlights and shadows keep less precision than recorded",
+                probe.bit_depth, probe.pix_fmt
+            ));
+        }
+    }
+    if sweep_cm < 3.0 * MIN_SWEEP_CM {
+        warnings.push(format!(
+            "the camera swept only {sweep_cm:.1} cm: light directions are few, so the specular lobe is poorly constrained (expected a sweep across the whole surface)"
+        ));
+    }
+    let d = &result.drops;
+    if d.decoded > 0 && (d.unregistered + d.disconnected) * 5 > d.decoded {
+        warnings.push(format!(
+            "{} of {} sampled frames could not be registered ({} unregistered, {} disconnected): parts of the surface may be seen by few frames",
+            d.unregistered + d.disconnected,
+            d.decoded,
+            d.unregistered,
+            d.disconnected
+        ));
+    }
     output::write(
         inputs,
         cfg,
@@ -336,6 +365,7 @@ pub fn align(
         out,
         overwrite,
         timer.0,
+        warnings,
         progress,
     )
 }
@@ -346,7 +376,7 @@ pub fn align(
 pub const MIN_SWEEP_CM: f64 = 1.0;
 
 /// Refuse a capture whose flash camera barely moved.
-fn check_baseline(reg: &matching::Registration, reference: &Path) -> Result<(), AlignError> {
+fn check_baseline(reg: &matching::Registration, reference: &Path) -> Result<f64, AlignError> {
     let xy: Vec<(f64, f64)> = reg
         .poses
         .iter()
@@ -369,7 +399,7 @@ fn check_baseline(reg: &matching::Registration, reference: &Path) -> Result<(), 
             reference.display()
         )));
     }
-    Ok(())
+    Ok(sweep)
 }
 
 /// Synchronise the second video with the flash video and decode its frames at its

@@ -56,6 +56,7 @@ pub fn write(
     out: &Path,
     overwrite: bool,
     mut timings: Vec<(String, f64)>,
+    warnings: Vec<String>,
     progress: &dyn Progress,
 ) -> Result<AlignSummary, AlignError> {
     let t0 = std::time::Instant::now();
@@ -258,6 +259,7 @@ pub fn write(
         timings,
         verified_pairs: reg.verified_pairs.clone(),
         second,
+        warnings,
     };
     #[derive(serde::Serialize)]
     struct Record<'a> {

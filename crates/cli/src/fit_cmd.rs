@@ -151,5 +151,6 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
         100.0 * worst
     );
     crate::print_timings(&s.timings);
+    crate::print_warnings(&s.warnings);
     Ok(run)
 }

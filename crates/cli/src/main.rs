@@ -340,7 +340,15 @@ fn run_align(a: &AlignArgs) -> Result<()> {
         s.solve_median_cm
     );
     print_timings(&s.timings);
+    print_warnings(&s.warnings);
     Ok(())
+}
+
+/// Doubts about the input or the result: once each, on stderr.
+pub fn print_warnings(warnings: &[String]) {
+    for w in warnings {
+        eprintln!("warning: {w}");
+    }
 }
 
 #[derive(Args)]

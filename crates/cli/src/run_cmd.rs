@@ -493,6 +493,19 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         prev_fp = fp;
         say!();
     }
+    // Every stage's doubts in one list.
+    let mut warnings = Vec::new();
+    for (file, key) in [
+        (a.out.join(ALIGNED).join("align.json"), "summary"),
+        (a.out.join(MAPS).join("fit.json"), "summary"),
+    ] {
+        if let Ok(v) = svbrdf_core::fsutil::read_json::<Value>(&file) {
+            if let Some(w) = v[key]["warnings"].as_array() {
+                warnings.extend(w.iter().filter_map(|s| s.as_str().map(String::from)));
+            }
+        }
+    }
+    record["warnings"] = json!(warnings);
     write_record(&record_path, &record)?;
     let (maps, light_intensity) = load_fit(&a.out.join(MAPS))?;
     let truth = match &a.truth {

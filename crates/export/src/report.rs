@@ -267,6 +267,10 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
             .map(|n| format!("{n} {} s", num(&r["stages"][*n]["seconds"], 1)))
             .collect();
         rows.push(("stage times".into(), st.join(", ")));
+        if let Some(w) = r["warnings"].as_array().filter(|w| !w.is_empty()) {
+            let w: Vec<&str> = w.iter().filter_map(|s| s.as_str()).collect();
+            rows.push(("warnings".into(), w.join(" | ")));
+        }
     }
     if let Some(a) = &align {
         let f = &a["summary"]["frames"];

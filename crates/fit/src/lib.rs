@@ -293,6 +293,10 @@ pub struct FitSummary {
     pub covered_pixels: usize,
     /// All pixels.
     pub pixels: usize,
+    /// Doubts about the input or the result, one sentence each (also on stderr, in
+    /// run.json and in the report).
+    #[serde(default)]
+    pub warnings: Vec<String>,
     /// Chosen k of the initial clustering.
     pub initial_clusters: usize,
     /// Summed squared k-means error per k from `k_min`.
@@ -692,7 +696,24 @@ pub fn fit(
     let rmse_final = (sse / (3 * n.max(1)) as f64).sqrt();
 
     let coverage = (0..npx).map(|p| obs.count(p) as u32).collect();
+    let mut warnings = Vec::new();
+    let unseen = npx - covered_px.len();
+    if unseen * 20 > npx {
+        warnings.push(format!(
+            "{:.0}% of the output pixels ({unseen} of {npx}) were seen by fewer than {} frames: their parameters are copied from the nearest fitted cluster, not measured (see maps/coverage.png)",
+            100.0 * unseen as f64 / npx as f64,
+            cfg.min_observations
+        ));
+    }
+    let all_obs = obs.len() as u64 + obs.clipped;
+    if all_obs > 0 && obs.clipped * 4 > all_obs {
+        warnings.push(format!(
+            "{:.0}% of the observations have a clipped channel: the video is overexposed, so highlights are measured only in part (lower the exposure)",
+            100.0 * obs.clipped as f64 / all_obs as f64
+        ));
+    }
     let summary = FitSummary {
+        warnings,
         model: model.name().to_string(),
         light_intensity: intensity,
         light_intensity_source: source,
