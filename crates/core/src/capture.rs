@@ -527,7 +527,12 @@ mod tests {
             encoding: Encoding::Srgb,
             stream: 0,
         });
-        let mut f = frame(FrameMapping::Homographies { subframes: vec![] });
+        let mut f = frame(FrameMapping::Homographies {
+            subframes: vec![SubFrame {
+                rect: [0.0, 0.0, 639.0, 479.0],
+                plane_from_pixel: [[0.01, 0.0, 0.0], [0.0, 0.01, 0.0], [0.0, 0.0, 1.0]],
+            }],
+        });
         f.light_position[2] = -1.0;
         cap.frames.push(f);
         let err = cap
