@@ -142,6 +142,17 @@ pub fn split(
             "at least one frame id",
         ));
     }
+    if let Some(d) = holdout
+        .iter()
+        .enumerate()
+        .find_map(|(i, h)| holdout[..i].contains(h).then_some(h))
+    {
+        return Err(FitError::invalid(
+            "hold-out list",
+            format!("{holdout:?}"),
+            format!("distinct frame ids ({d} appears twice)"),
+        ));
+    }
     let mut base = capture.clone();
     for s in &mut base.sources {
         let p = Path::new(&s.path);

@@ -536,6 +536,19 @@ fn video_cases(c: &mut Cases) {
         vfr,
         Expect::Accept,
     );
+    let av1 = d.join("av1.mkv");
+    ffmpeg(&[
+        "-i",
+        &v,
+        "-c:v",
+        "libsvtav1",
+        "-preset",
+        "12",
+        "-svtav1-params",
+        "loglevel=0",
+        &s(&av1),
+    ]);
+    c.align_video("AV1 in Matroska", av1, Expect::Accept);
     let rot = d.join("rot90.mp4");
     ffmpeg(&[
         "-i",
@@ -674,6 +687,39 @@ fn reference_cases(c: &mut Cases) {
         dict,
         reject(&["DICT_4X4_50", "marker"]),
     );
+    let kit = d.join("kit");
+    let o = crate::util::svbrdf(&["markers", "--out", &s(&kit)]);
+    assert!(o.status.success());
+    let dup = d.join("dup.jpg");
+    ffmpeg(&[
+        "-i",
+        &s(&f.reference),
+        "-i",
+        &s(&kit.join("markers.png")),
+        "-filter_complex",
+        "[1]scale=300:-1[m];[0][m]overlay=10:10",
+        "-q:v",
+        "2",
+        &s(&dup),
+    ]);
+    c.align_with(
+        "a second set of markers (7 found, ids repeated)",
+        dup,
+        cam.clone(),
+        reject(&["dup.jpg", "4 distinct markers", "found ids"]),
+    );
+    // EXIF orientation 6 (rotate 90 degrees clockwise) in an APP1 segment after SOI.
+    let mut exif = vec![0xFF, 0xD8, 0xFF, 0xE1, 0x00, 34];
+    exif.extend_from_slice(
+        b"Exif\0\0MM\0\x2a\0\0\0\x08\0\x01\x01\x12\0\x03\0\0\0\x01\0\x06\0\0\0\0\0\0",
+    );
+    exif.extend_from_slice(&rb[2..]);
+    c.align_with(
+        "EXIF orientation 6 (rotated 90 degrees)",
+        write(&d.join("exif6.jpg"), exif),
+        cam.clone(),
+        Expect::Accept,
+    );
     let gray16 = d.join("ref16.png");
     ffmpeg(&["-i", &s(&f.reference), "-pix_fmt", "rgb48be", &s(&gray16)]);
     c.align_with("16-bit PNG", gray16, cam.clone(), Expect::Accept);
@@ -724,6 +770,11 @@ fn camera_cases(c: &mut Cases) {
             &["number out of range"],
         ),
         ("fov as string", r#"{"fov_deg": "70"}"#, &["invalid type"]),
+        (
+            "fov NaN (not JSON)",
+            r#"{"fov_deg": NaN}"#,
+            &["expected value"],
+        ),
         ("fov null", r#"{"fov_deg": null}"#, &["invalid type"]),
         (
             "marker size 0",
@@ -1022,6 +1073,17 @@ fn capture_cases(c: &mut Cases) {
         &[],
         reject(&["capture.json", "expected"]),
     );
+    let nan = c.f.capture_json.to_string().replacen(
+        "\"camera_position\":[",
+        "\"camera_position\":[NaN,",
+        1,
+    );
+    c.fit_capture(
+        "NaN pose (not JSON)",
+        nan,
+        &[],
+        reject(&["capture.json", "expected value"]),
+    );
     let text = c.f.capture_json.to_string();
     c.fit_capture(
         "--px-per-cm 0",
@@ -1125,6 +1187,18 @@ fn import_eval_cases(c: &mut Cases) {
             "not an image",
             "02.png",
         ),
+        (
+            "import: NaN camera position",
+            "camera_pos.txt",
+            "nan,0,20\n1,0,20\n0,1,20\n1,1,20\n",
+            "not three numbers",
+        ),
+        (
+            "import: infinite light position",
+            "light_pos.txt",
+            "0,0,20\n1,0,inf\n0,1,20\n1,1,20\n",
+            "not three numbers",
+        ),
     ] {
         let b = broken(&name.replace([' ', ':'], "_"), file, text);
         c.cmd(
@@ -1154,6 +1228,7 @@ fn import_eval_cases(c: &mut Cases) {
         ),
         ("eval: negative id", "-1", "-1"),
         ("eval: not a number", "a,b", "invalid digit"),
+        ("eval: a frame held out twice", "3,3", "3 appears twice"),
     ] {
         c.cmd(
             name,
