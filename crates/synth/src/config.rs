@@ -10,10 +10,17 @@ use serde::{Deserialize, Serialize};
 use crate::SynthError;
 
 /// Names accepted by `--preset`.
-pub const PRESETS: &[&str] = &["tiny", "paper", "two-camera"];
+pub const PRESETS: &[&str] = &["tiny", "paper", "two-camera", "hard", "hard-small"];
 
 /// Built-in procedural materials accepted by `--material`.
-pub const MATERIALS: &[&str] = &["patchwork", "leather", "brushed-metal", "tiles", "facets"];
+pub const MATERIALS: &[&str] = &[
+    "patchwork",
+    "leather",
+    "brushed-metal",
+    "tiles",
+    "facets",
+    "bathroom-tiles",
+];
 
 /// Where the material comes from.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -57,6 +64,10 @@ pub struct VideoSpec {
     pub k2: f64,
     /// Focus breathing: relative frame-to-frame change of k1 and of the focal length.
     pub breathing: f64,
+    /// Phone-to-phone spread of k1: the capture's k1 is `k1` plus a seeded uniform
+    /// draw in [-k1_spread, k1_spread] (0: exactly `k1`).
+    #[serde(default)]
+    pub k1_spread: f64,
 }
 
 /// The hand-held sweep of the flash camera.
@@ -74,6 +85,14 @@ pub struct SweepSpec {
     pub tilt_jitter_deg: f64,
     /// Probability that a frame is motion-blurred, in [0, 1].
     pub motion_blur_probability: f64,
+    /// How far the sweep reaches towards the region's edges, as a fraction of its
+    /// half-size (1: the camera passes over the markers at the corners).
+    #[serde(default = "one")]
+    pub reach: f64,
+}
+
+fn one() -> f64 {
+    1.0
 }
 
 /// The reference photo.
@@ -89,6 +108,9 @@ pub struct ReferenceSpec {
     pub distance_cm: f64,
     /// Tilt away from parallel, degrees (0: the paper's levelled photo).
     pub tilt_deg: f64,
+    /// Rotation about the vertical (the photo's roll against the markers), degrees.
+    #[serde(default)]
+    pub roll_deg: f64,
     /// JPEG quality, 1-100.
     pub jpeg_quality: i32,
     /// Supersampling per axis (anti-aliasing of marker edges).
@@ -205,6 +227,8 @@ impl SynthConfig {
             "tiny" => Ok(Self::tiny()),
             "paper" => Ok(Self::paper()),
             "two-camera" => Ok(Self::two_camera()),
+            "hard" => Ok(Self::hard()),
+            "hard-small" => Ok(Self::hard_small()),
             other => Err(SynthError::invalid(
                 "preset",
                 format!("{other:?}"),
@@ -238,6 +262,7 @@ impl SynthConfig {
                 k1: -0.06,
                 k2: 0.01,
                 breathing: 0.01,
+                k1_spread: 0.0,
             },
             sweep: SweepSpec {
                 distance_min_cm: 7.0,
@@ -246,6 +271,7 @@ impl SynthConfig {
                 vertical_passes: 1.0,
                 tilt_jitter_deg: 3.0,
                 motion_blur_probability: 0.05,
+                reach: 1.0,
             },
             reference: ReferenceSpec {
                 width: 720,
@@ -253,6 +279,7 @@ impl SynthConfig {
                 fov_deg: 70.0,
                 distance_cm: 20.0,
                 tilt_deg: 0.0,
+                roll_deg: 0.0,
                 jpeg_quality: 92,
                 supersample: 3,
             },
@@ -295,6 +322,81 @@ impl SynthConfig {
                 ..Self::tiny().reference
             },
             ..Self::tiny()
+        }
+    }
+
+    /// Conditions under which captures we did not make broke alignment (issue 18):
+    /// 4K for 10 s over a 20 x 20 cm region of glazed bathroom tiles (a regular grid,
+    /// five colours, a repeated motif, grout), filmed from 10-15 cm so that markers are
+    /// fully in view in few frames; a no-flash reference photo at 27 cm, 4:3, tilted 4
+    /// degrees and rolled 8; k1 drawn per capture in [-0.05, 0.05] with focus
+    /// breathing; ambient light about 15% of the flash.
+    pub fn hard() -> Self {
+        Self {
+            preset: "hard".into(),
+            material: MaterialSource::Procedural("bathroom-tiles".into()),
+            region_cm: [20.0, 20.0],
+            map_px_per_cm: 100.0,
+            feature_cm: 0.05,
+            video: VideoSpec {
+                width: 2160,
+                height: 3840,
+                duration_s: 10.0,
+                k1: 0.0,
+                k1_spread: 0.05,
+                ..Self::tiny().video
+            },
+            sweep: SweepSpec {
+                distance_min_cm: 10.0,
+                distance_max_cm: 15.0,
+                side_cycles: 3.0,
+                vertical_passes: 2.0,
+                reach: 0.78,
+                ..Self::tiny().sweep
+            },
+            reference: ReferenceSpec {
+                width: 3000,
+                height: 4000,
+                distance_cm: 27.0,
+                tilt_deg: 4.0,
+                roll_deg: 8.0,
+                supersample: 2,
+                ..Self::tiny().reference
+            },
+            light: LightSpec {
+                ambient: 0.1,
+                ..LightSpec::default()
+            },
+            ..Self::tiny()
+        }
+    }
+
+    /// `hard` at 540x960 for 4 s (under a minute to render; for tests).
+    pub fn hard_small() -> Self {
+        let h = Self::hard();
+        Self {
+            preset: "hard-small".into(),
+            map_px_per_cm: 30.0,
+            feature_cm: 0.1,
+            video: VideoSpec {
+                width: 540,
+                height: 960,
+                duration_s: 4.0,
+                ..h.video.clone()
+            },
+            sweep: SweepSpec {
+                distance_min_cm: 9.0,
+                distance_max_cm: 13.0,
+                side_cycles: 2.0,
+                ..h.sweep.clone()
+            },
+            reference: ReferenceSpec {
+                width: 1200,
+                height: 1600,
+                supersample: 3,
+                ..h.reference.clone()
+            },
+            ..h
         }
     }
 
@@ -435,6 +537,13 @@ impl SynthConfig {
                 "maximum distance",
                 s.distance_max_cm,
                 format!("cm, at least the minimum distance {}", s.distance_min_cm),
+            ));
+        }
+        if !(s.reach > 0.0 && s.reach <= 1.5) {
+            return Err(SynthError::invalid(
+                "sweep reach",
+                s.reach,
+                "a fraction of the region's half-size in (0, 1.5]",
             ));
         }
         if !(0.0..=1.0).contains(&s.motion_blur_probability) {

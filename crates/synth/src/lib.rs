@@ -39,7 +39,7 @@ use svbrdf_core::brdf::{BrdfModel, LightView, Prepared, Ward};
 use svbrdf_core::capture::{Frame, FrameMapping, RegisteredCapture, Source, SourceKind};
 use svbrdf_core::fsutil::{write_json, StagingDir};
 use svbrdf_core::geometry::{
-    mat3_to_rows, rot_x, Camera, Intrinsics, Mat3, Pose, RadialDistortion, Vec2, Vec3,
+    mat3_to_rows, rot_x, rot_z, Camera, Intrinsics, Mat3, Pose, RadialDistortion, Vec2, Vec3,
 };
 use svbrdf_core::image::ImageF32;
 use svbrdf_core::maps::{write_exr, write_png, Encoding, PngDepth};
@@ -187,7 +187,7 @@ pub fn synthesize(
         intrinsics: Intrinsics::from_fov(r.width, r.height, r.fov_deg)?,
         distortion: RadialDistortion::default(),
         pose: Pose {
-            rotation: rot_x(r.tilt_deg.to_radians()) * down,
+            rotation: rot_z(r.roll_deg.to_radians()) * rot_x(r.tilt_deg.to_radians()) * down,
             centre: Vec3::new(0.0, 0.0, r.distance_cm),
         },
     };

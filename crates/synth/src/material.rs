@@ -98,6 +98,7 @@ impl MaterialMaps {
                 "leather" => leather(seed, x, y, f),
                 "brushed-metal" => brushed(seed, x, y, f),
                 "tiles" => tiles(seed, x, y, f, cell),
+                "bathroom-tiles" => bathroom_tiles(seed, x, y, f),
                 "facets" => facets(seed, x, y, f, cell),
                 _ => patchwork(seed, x, y, f, cell),
             }
@@ -481,6 +482,59 @@ fn tiles(seed: u64, x: f64, y: f64, f: f64, cell: f64) -> Texel {
         paint(seed, x, y, f)
     } else {
         gold(seed, x, y, f)
+    }
+}
+
+/// Side of a bathroom tile, grout included, cm.
+const BATHROOM_TILE_CM: f64 = 2.5;
+
+/// Glazed tiles on a regular grid, the repetitive texture the paper names as a
+/// limitation of feature matching: each tile one of five colours (chosen by a hash of
+/// its index), with little texture of its own, a glossy glaze, every fourth tile with
+/// the same printed motif, and grout lines between them.
+fn bathroom_tiles(seed: u64, x: f64, y: f64, f: f64) -> Texel {
+    const COLOURS: [[f64; 3]; 5] = [
+        [0.62, 0.64, 0.66],
+        [0.20, 0.36, 0.55],
+        [0.55, 0.52, 0.40],
+        [0.18, 0.45, 0.38],
+        [0.70, 0.42, 0.30],
+    ];
+    let c = BATHROOM_TILE_CM;
+    let (u, v) = (x / c, y / c);
+    let (iu, iv) = (u.floor() as i64, v.floor() as i64);
+    let (fu, fv) = (u - u.floor(), v - v.floor());
+    let grout = 0.08;
+    if fu < grout || fv < grout {
+        let mut t = base_texel(seed, GROUT, x, y, f, -0.02);
+        t.alpha = GROUT.alpha;
+        return t;
+    }
+    let h = crate::noise::hash2(seed ^ 0x711E, iu, iv);
+    let colour = COLOURS[((h * 5.0) as usize).min(4)];
+    // The glaze: weak, smooth variation (real tiles are nearly uniform).
+    let t = fbm(seed ^ 0x61A2, x / (6.0 * f), y / (6.0 * f), 4);
+    let tex = 0.92 + 0.16 * t;
+    let mut rho_d = colour.map(|v| v * tex);
+    // The motif, identical on every motif tile: a dark ring and a centred diamond.
+    if crate::noise::hash2(seed ^ 0x3071F, iu, iv) < 0.25 {
+        let (px, py) = (
+            (fu - grout) / (1.0 - grout) - 0.5,
+            (fv - grout) / (1.0 - grout) - 0.5,
+        );
+        let r = (px * px + py * py).sqrt();
+        let ring = (r - 0.32).abs() < 0.035;
+        let diamond = px.abs() + py.abs() < 0.14;
+        if ring || diamond {
+            rho_d = [0.08, 0.06, 0.05];
+        }
+    }
+    Texel {
+        rho_d,
+        rho_s: [0.25; 3],
+        alpha: [0.07, 0.07],
+        height_cm: 0.0,
+        slope: [0.0; 2],
     }
 }
 

@@ -76,14 +76,18 @@ impl Sweep {
             Wobble::new(&mut rng, 0.5, 2.0),
         ];
         Self {
-            half_w,
-            half_h,
+            half_w: half_w * spec.reach,
+            half_h: half_h * spec.reach,
             spec: spec.clone(),
             duration: video.duration_s,
             phase: rng.random_range(0.0..1.0),
             jitter,
             breathing: Wobble::new(&mut rng, 0.5, 3.0),
-            base_k1: video.k1,
+            base_k1: if video.k1_spread > 0.0 {
+                video.k1 + video.k1_spread * (2.0 * rng.random_range(0.0..1.0) - 1.0)
+            } else {
+                video.k1
+            },
             breath_amp: video.breathing,
         }
     }
