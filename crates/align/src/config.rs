@@ -61,6 +61,9 @@ pub struct AlignConfig {
     pub sift_contrast: f64,
     /// Match every frame against the reference photo for absolute constraints.
     pub match_reference: bool,
+    /// The check of every kept frame against the reference photo after the solve.
+    #[serde(default)]
+    pub self_check: crate::selfcheck::SelfCheckConfig,
     /// Weight of a match with the reference photo relative to a match between frames:
     /// the reference is coarser and lit differently, so its features are less precise.
     pub reference_weight: f64,
@@ -114,6 +117,7 @@ impl Default for AlignConfig {
             subframes: None,
             sift_contrast: 0.02,
             match_reference: true,
+            self_check: crate::selfcheck::SelfCheckConfig::default(),
             reference_weight: 1.0,
             overlap_weight: 4.0,
             iterations: 8,

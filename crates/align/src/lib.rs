@@ -24,6 +24,7 @@ pub mod output;
 pub mod patch;
 pub mod pose;
 pub mod reference;
+pub mod selfcheck;
 pub mod solve;
 pub mod sync;
 
@@ -92,6 +93,10 @@ pub struct DropCounts {
     pub unregistered: usize,
     /// Camera pose outside the marker boundary.
     pub outside: usize,
+    /// Registered, but where the reference photo shows its texture elsewhere (the
+    /// self-check after the solve).
+    #[serde(default)]
+    pub inconsistent: usize,
     /// Kept.
     pub kept: usize,
 }
@@ -135,6 +140,9 @@ pub struct AlignSummary {
     /// run.json and in the report).
     #[serde(default)]
     pub warnings: Vec<String>,
+    /// The self-check of every registered frame against the reference photo.
+    #[serde(default)]
+    pub self_check: Vec<selfcheck::FrameCheck>,
 }
 
 /// What happened to the second stream of a two-camera capture.
@@ -332,6 +340,16 @@ pub fn align(
     }
     let sweep_cm = check_baseline(&result, &inputs.reference)?;
     let mut warnings = Vec::new();
+    let mut result = result;
+    let checks = if cfg.self_check.enabled {
+        let region = cfg.region.unwrap_or_else(|| reference.marker_region());
+        let checks = self_check(&result, &ref_img, &reference, region)?;
+        timer.lap("self-check");
+        apply_self_check(&mut result, &checks, &cfg.self_check, &mut warnings)?;
+        checks
+    } else {
+        Vec::new()
+    };
     if let Some(v) = &inputs.video {
         let probe = svbrdf_cv::probe::probe_video(v)?;
         if probe.bit_depth > 8 {
@@ -366,8 +384,128 @@ pub fn align(
         overwrite,
         timer.0,
         warnings,
+        checks,
         progress,
     )
+}
+
+/// Check every registered frame against the reference photo (see `selfcheck`).
+fn self_check(
+    reg: &matching::Registration,
+    ref_img: &svbrdf_core::image::ImageU8,
+    reference: &reference::ReferenceFrame,
+    region: svbrdf_core::plane::Region,
+) -> Result<Vec<selfcheck::FrameCheck>, AlignError> {
+    let mut frames = Vec::with_capacity(reg.frames.len());
+    for ((f, m), pose) in reg.frames.iter().zip(&reg.mappings).zip(&reg.poses) {
+        let frame = svbrdf_core::capture::Frame {
+            id: 0,
+            source: 0,
+            frame_index: Some(f.index),
+            image: None,
+            time_s: None,
+            width: f.width,
+            height: f.height,
+            mapping: svbrdf_core::capture::FrameMapping::Homographies {
+                subframes: m
+                    .iter()
+                    .map(|(rect, h)| svbrdf_core::capture::SubFrame {
+                        rect: *rect,
+                        plane_from_pixel: svbrdf_core::geometry::mat3_to_rows(h),
+                    })
+                    .collect(),
+            },
+            camera_position: pose.centre.into(),
+            light_position: pose.centre.into(),
+        };
+        frames.push(selfcheck::CheckedFrame {
+            frame: f.index,
+            stream: f.stream,
+            thumb: &f.thumb,
+            width: f.width,
+            mapping: svbrdf_core::capture::PreparedMapping::new(&frame)?,
+        });
+    }
+    Ok(selfcheck::check(
+        ref_img,
+        &reference.plane_from_pixel,
+        region,
+        &frames,
+    ))
+}
+
+/// Drop the frames the self-check found inconsistent with the reference photo, or
+/// refuse the capture when too many are.
+fn apply_self_check(
+    reg: &mut matching::Registration,
+    checks: &[selfcheck::FrameCheck],
+    cfg: &selfcheck::SelfCheckConfig,
+    warnings: &mut Vec<String>,
+) -> Result<(), AlignError> {
+    let checked: Vec<&selfcheck::FrameCheck> =
+        checks.iter().filter(|c| c.shift_mm.is_some()).collect();
+    let bad: Vec<&selfcheck::FrameCheck> = checked
+        .iter()
+        .copied()
+        .filter(|c| c.inconsistent(cfg.max_shift_mm))
+        .collect();
+    let unverified = checks.len() - checked.len();
+    if unverified * 2 > checks.len() {
+        warnings.push(format!(
+            "the self-check could verify only {} of {} registered frames against the reference photo (too little matching texture or too much highlight): their registration is unchecked",
+            checked.len(),
+            checks.len()
+        ));
+    }
+    if bad.is_empty() {
+        return Ok(());
+    }
+    let shifts: Vec<f64> = bad.iter().filter_map(|c| c.shift_mm).collect();
+    let worst = shifts.iter().copied().fold(0.0, f64::max);
+    let mut sorted = shifts.clone();
+    sorted.sort_by(f64::total_cmp);
+    let median = sorted[sorted.len() / 2];
+    let frames: Vec<u64> = bad.iter().map(|c| c.frame).collect();
+    let what = format!(
+        "frames {} ({} of {} checked) lie {:.1}-{:.1} mm (median {:.1} mm) from where the reference photo shows the same texture",
+        selfcheck::ranges(&frames),
+        bad.len(),
+        checked.len(),
+        sorted[0],
+        worst,
+        median
+    );
+    if bad.len() as f64 > cfg.max_inconsistent_share * checked.len() as f64 {
+        return Err(AlignError::Solve(format!(
+            "the registration failed its self-check: {what}, although the solve's residual is small (frames that drifted together, or matches one pattern repeat off on a repetitive texture); expected at most {:.0}% of the frames off by more than {} mm. Film again passing over each marker several times and keeping the phone 10-15 cm from the surface, or lower the frame step in the camera description",
+            100.0 * cfg.max_inconsistent_share,
+            cfg.max_shift_mm
+        )));
+    }
+    warnings.push(format!(
+        "{what}; these frames were dropped (self-check against the reference photo)"
+    ));
+    let drop: std::collections::HashSet<usize> = bad.iter().map(|c| c.kept_index).collect();
+    fn retain_kept<T>(v: &mut Vec<T>, drop: &std::collections::HashSet<usize>) {
+        let mut i = 0;
+        v.retain(|_| {
+            i += 1;
+            !drop.contains(&(i - 1))
+        });
+    }
+    retain_kept(&mut reg.frames, &drop);
+    retain_kept(&mut reg.mappings, &drop);
+    retain_kept(&mut reg.poses, &drop);
+    retain_kept(&mut reg.lights, &drop);
+    let flash_dropped = bad.iter().filter(|c| c.stream == 0).count();
+    reg.drops.inconsistent += flash_dropped;
+    reg.drops.kept -= flash_dropped.min(reg.drops.kept);
+    if let Some(d) = &mut reg.second_drops {
+        let n = bad.len() - flash_dropped;
+        d.inconsistent += n;
+        d.kept -= n.min(d.kept);
+    }
+    Ok(())
 }
 
 /// Smallest sweep of the flash camera accepted, cm: the extent of its positions over

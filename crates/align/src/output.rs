@@ -57,6 +57,7 @@ pub fn write(
     overwrite: bool,
     mut timings: Vec<(String, f64)>,
     warnings: Vec<String>,
+    self_check: Vec<crate::selfcheck::FrameCheck>,
     progress: &dyn Progress,
 ) -> Result<AlignSummary, AlignError> {
     let t0 = std::time::Instant::now();
@@ -260,6 +261,7 @@ pub fn write(
         verified_pairs: reg.verified_pairs.clone(),
         second,
         warnings,
+        self_check,
     };
     #[derive(serde::Serialize)]
     struct Record<'a> {

@@ -38,6 +38,11 @@ pub struct ReferenceFrame {
     pub tilt: f64,
     /// Height of the reference camera above the plane, cm.
     pub height: f64,
+    /// Where the world axes come from: `markers` (origin at the centre of the four
+    /// markers' inner corners, +x from the pair of ids 0 and 3 towards ids 1 and 2) or
+    /// `reference photo` (the paper's: origin under the photo's centre, its axes), used
+    /// when the markers are not laid out as the capture kit says.
+    pub axes: String,
 }
 
 impl ReferenceFrame {
@@ -233,9 +238,39 @@ pub fn reference_frame(
         markers.push((m.id, c));
     }
     markers.sort_by_key(|m| m.0);
+    // Move the world frame onto the markers, so that it does not depend on where the
+    // reference photo was taken from or how it was rolled.
+    let (to_markers, axes) = match marker_axes(&markers) {
+        Some(t) => (t, "markers"),
+        None => ((Vec2::zeros(), Vec2::new(1.0, 0.0)), "reference photo"),
+    };
+    let (o, ex2) = to_markers;
+    let ey2 = Vec2::new(-ex2.y, ex2.x);
+    // world' = Rz (world - o): rows of Rz are the new axes in the old frame.
+    let rz = Mat3::new(ex2.x, ex2.y, 0.0, ey2.x, ey2.y, 0.0, 0.0, 0.0, 1.0);
+    let a = Homography(Mat3::new(
+        ex2.x,
+        ex2.y,
+        -ex2.dot(&o),
+        ey2.x,
+        ey2.y,
+        -ey2.dot(&o),
+        0.0,
+        0.0,
+        1.0,
+    ));
+    let plane_from_pixel = Homography(a.0 * plane_from_pixel.0).normalized();
+    let to_new = |p: Vec2| {
+        let d = p - o;
+        Vec2::new(ex2.dot(&d), ey2.dot(&d))
+    };
+    for (_, c) in &mut markers {
+        *c = c.map(to_new);
+    }
+    let centre = rz * (centre - Vec3::new(o.x, o.y, 0.0));
     Ok(ReferenceFrame {
         pose: Pose {
-            rotation: w_from_c,
+            rotation: rz * w_from_c,
             centre,
         },
         intrinsics: *k,
@@ -243,7 +278,37 @@ pub fn reference_frame(
         markers,
         tilt: (-n.z).clamp(-1.0, 1.0).acos(),
         height: centre.z,
+        axes: axes.into(),
     })
+}
+
+/// The world origin and +x axis (in the photo's plane frame) defined by four markers
+/// laid out as the capture kit says (ids in increasing order at the top-left,
+/// top-right, bottom-right and bottom-left): origin at the centre of their inner
+/// corners, +x from the left pair towards the right pair. `None` when there are not
+/// four markers or the layout is not that one (the +y axis it implies, from the
+/// bottom pair to the top pair, is more than 25 degrees off).
+fn marker_axes(markers: &[(i32, [Vec2; 4])]) -> Option<(Vec2, Vec2)> {
+    if markers.len() != 4 {
+        return None;
+    }
+    let centre = |c: &[Vec2; 4]| c.iter().fold(Vec2::zeros(), |a, p| a + p) / 4.0;
+    let m: Vec<Vec2> = markers.iter().map(|(_, c)| centre(c)).collect();
+    let all = m.iter().fold(Vec2::zeros(), |a, p| a + p) / 4.0;
+    let ex = ((m[1] + m[2]) - (m[0] + m[3])).try_normalize(1e-9)?;
+    let up = ((m[0] + m[1]) - (m[3] + m[2])).try_normalize(1e-9)?;
+    let ey = Vec2::new(-ex.y, ex.x);
+    if ey.dot(&up) < 25f64.to_radians().cos() {
+        return None;
+    }
+    // Each marker's inner corner: its corner nearest the centre of all four.
+    let inner = markers.iter().map(|(_, c)| {
+        *c.iter()
+            .min_by(|a, b| (*a - all).norm().total_cmp(&(*b - all).norm()))
+            .unwrap_or(&all)
+    });
+    let origin = inner.fold(Vec2::zeros(), |a, p| a + p) / 4.0;
+    Some((origin, ex))
 }
 
 #[cfg(test)]
@@ -308,14 +373,8 @@ mod tests {
             let d = (rf.markers[0].1[0] - rf.markers[2].1[2]).norm();
             let dt = (Vec2::new(-5.6, 5.6) - Vec2::new(5.6, -5.6)).norm();
             assert!((d - dt).abs() < 2e-3, "{d} vs {dt}");
-            // Camera distance to the plane point on its axis.
-            let axis_hit = svbrdf_core::geometry::ray_plane(
-                cam.pose.centre,
-                cam.pose.rotation.column(2).into_owned(),
-            )
-            .unwrap();
-            let true_range = (Vec3::new(axis_hit.x, axis_hit.y, 0.0) - cam.pose.centre).norm();
-            assert!((rf.pose.centre.norm() - true_range).abs() < 1e-2);
+            // The world frame is the markers', so the camera is where it was placed.
+            assert!((rf.pose.centre - cam.pose.centre).norm() < 1e-2);
             if tilt_deg == 0.0 {
                 // Untilted: world frame equals the simulator's.
                 assert!((rf.markers[0].1[0] - Vec2::new(-5.6, 5.6)).norm() < 1e-3);
@@ -323,6 +382,58 @@ mod tests {
                 assert!((r.x_min + 4.0).abs() < 1e-3 && (r.y_max - 4.0).abs() < 1e-3);
             }
         }
+    }
+
+    #[test]
+    fn world_frame_follows_the_markers_not_the_photo() {
+        let k = Intrinsics::from_fov(720, 1280, 70.0).unwrap();
+        let down = Mat3::new(1.0, 0.0, 0.0, 0.0, -1.0, 0.0, 0.0, 0.0, -1.0);
+        let s = 1.6;
+        let truth = [
+            square(-5.6, 5.6, s),
+            square(4.0, 5.6, s),
+            square(4.0, -4.0, s),
+            square(-5.6, -4.0, s),
+        ];
+        // Off-centre, rolled 10 degrees and tilted 4: the world frame is still the
+        // markers' (the simulator's).
+        let cam = Camera {
+            intrinsics: k,
+            distortion: RadialDistortion::default(),
+            pose: Pose {
+                rotation: svbrdf_core::geometry::rot_z(10f64.to_radians())
+                    * rot_x(4f64.to_radians())
+                    * down,
+                centre: Vec3::new(1.5, -0.8, 22.0),
+            },
+        };
+        let found: Vec<_> = truth
+            .iter()
+            .enumerate()
+            .map(|(i, c)| observe(&cam, c, i as i32))
+            .collect();
+        let rf = reference_frame(&k, &found, s, 4).unwrap();
+        assert_eq!(rf.axes, "markers");
+        for (id, c) in &rf.markers {
+            for (p, t) in c.iter().zip(&truth[*id as usize]) {
+                assert!(
+                    (p - Vec2::new(t[0], t[1])).norm() < 2e-3,
+                    "{id}: {p} vs {t:?}"
+                );
+            }
+        }
+        assert!(
+            (rf.pose.centre - cam.pose.centre).norm() < 0.02,
+            "{}",
+            rf.pose.centre
+        );
+        assert!((rf.pose.rotation - cam.pose.rotation).norm() < 1e-3);
+        // Markers not in the kit's layout (ids 1 and 3 swapped): the photo's axes.
+        let mut swapped = found.clone();
+        swapped[1].id = 3;
+        swapped[3].id = 1;
+        let rf = reference_frame(&k, &swapped, s, 4).unwrap();
+        assert_eq!(rf.axes, "reference photo");
     }
 
     #[test]
