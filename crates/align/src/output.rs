@@ -45,6 +45,23 @@ fn dot(img: &mut ImageF32, x: f64, y: f64, r: f64, rgb: [f32; 3]) {
     }
 }
 
+/// The reference photo's camera and the markers in the world frame, as `align.json`
+/// records them (so that others can check the frame the capture is in).
+#[derive(Debug, Clone, serde::Serialize)]
+struct ReferenceCamera {
+    /// Where the world axes come from: `markers` or `reference photo`.
+    axes: String,
+    /// Intrinsics of the reference photo (pixels; no distortion is modelled).
+    intrinsics: svbrdf_core::geometry::Intrinsics,
+    /// world_from_camera rotation, row-major (camera: x right, y down, z forward).
+    rotation: [[f64; 3]; 3],
+    /// Camera centre, world cm.
+    position: [f64; 3],
+    /// Each marker's corners in world cm (OpenCV's order: the marker's own top-left,
+    /// top-right, bottom-right, bottom-left).
+    marker_corners_cm: Vec<(i32, [[f64; 2]; 4])>,
+}
+
 /// Write everything into `out` (atomically).
 #[allow(clippy::too_many_arguments)]
 pub fn write(
@@ -272,6 +289,7 @@ pub fn write(
         reference: String,
         reference_tilt_deg: f64,
         reference_height_cm: f64,
+        reference_camera: ReferenceCamera,
         summary: &'a AlignSummary,
     }
     write_json(
@@ -287,6 +305,17 @@ pub fn write(
             reference: inputs.reference.display().to_string(),
             reference_tilt_deg: rf.tilt.to_degrees(),
             reference_height_cm: rf.height,
+            reference_camera: ReferenceCamera {
+                axes: rf.axes.clone(),
+                intrinsics: rf.intrinsics,
+                rotation: mat3_to_rows(&rf.pose.rotation),
+                position: rf.pose.centre.into(),
+                marker_corners_cm: rf
+                    .markers
+                    .iter()
+                    .map(|(id, c)| (*id, c.map(|p| [p.x, p.y])))
+                    .collect(),
+            },
             summary: &summary,
         },
     )?;

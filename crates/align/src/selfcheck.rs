@@ -461,6 +461,113 @@ mod tests {
         assert_eq!(parabola(None, 1.0, Some(0.0)), 0.0);
     }
 
+    /// A tile-like texture: 4 mm cells of hashed colours with a smooth shading.
+    fn plane_colour(x: f64, y: f64) -> [u8; 3] {
+        let (i, j) = ((x / 0.4).floor() as i64, (y / 0.4).floor() as i64);
+        let h = |k: i64| {
+            let v = (i.wrapping_mul(73_856_093)
+                ^ j.wrapping_mul(19_349_663)
+                ^ k.wrapping_mul(83_492_791))
+            .rem_euclid(200);
+            (30 + v) as f64
+        };
+        let shade = 0.8 + 0.2 * (0.3 * x).sin();
+        [h(1), h(2), h(3)].map(|v| (v * shade) as u8)
+    }
+
+    /// An image of `w` x `h` pixels seeing the plane through `plane_from_pixel`.
+    fn render(w: usize, h: usize, plane_from_pixel: &Homography) -> ImageU8 {
+        let mut img = ImageU8::new(w, h, 3);
+        for r in 0..h {
+            for c in 0..w {
+                let q = plane_from_pixel
+                    .apply(Vec2::new(c as f64, r as f64))
+                    .unwrap();
+                img.pixel_mut(c, r).copy_from_slice(&plane_colour(q.x, q.y));
+            }
+        }
+        img
+    }
+
+    /// Pixel (u, v) -> plane (x0 + u / s, y0 - v / s).
+    fn affine(x0: f64, y0: f64, s: f64) -> Homography {
+        Homography(svbrdf_core::geometry::Mat3::new(
+            1.0 / s,
+            0.0,
+            x0,
+            0.0,
+            -1.0 / s,
+            y0,
+            0.0,
+            0.0,
+            1.0,
+        ))
+    }
+
+    fn mapping(h: &Homography, w: u32) -> PreparedMapping {
+        let frame = svbrdf_core::capture::Frame {
+            id: 0,
+            source: 0,
+            frame_index: Some(0),
+            image: None,
+            time_s: None,
+            width: w,
+            height: w,
+            mapping: svbrdf_core::capture::FrameMapping::Homographies {
+                subframes: vec![svbrdf_core::capture::SubFrame {
+                    rect: [-0.5, -0.5, w as f64 - 0.5, w as f64 - 0.5],
+                    plane_from_pixel: svbrdf_core::geometry::mat3_to_rows(&h.0),
+                }],
+            },
+            camera_position: [0.0, 0.0, 10.0],
+            light_position: [0.0, 0.0, 10.0],
+        };
+        PreparedMapping::new(&frame).unwrap()
+    }
+
+    #[test]
+    fn frames_registered_off_the_reference_are_flagged_and_only_those() {
+        // Reference: 20 px/cm over [-8, 8] cm.
+        let ref_h = affine(-8.0, 8.0, 20.0);
+        let reference = render(320, 320, &ref_h);
+        // Ten frames at 16 px/cm, each 10 cm wide, moving across; frames 4-6 are
+        // rendered where they are but registered 5 mm off (a misregistered stretch).
+        let side = 160u32;
+        let mut thumbs = Vec::new();
+        let mut maps = Vec::new();
+        for k in 0..10 {
+            let x0 = -8.0 + 0.6 * k as f64;
+            let truth = affine(x0, 5.0 - 0.3 * k as f64, 16.0);
+            thumbs.push(render(side as usize, side as usize, &truth));
+            let off = if (4..=6).contains(&k) { 0.5 } else { 0.0 };
+            maps.push(affine(x0 + off, 5.0 - 0.3 * k as f64, 16.0));
+        }
+        let frames: Vec<CheckedFrame> = (0..10)
+            .map(|k| CheckedFrame {
+                frame: 5 * k as u64,
+                stream: 0,
+                thumb: &thumbs[k],
+                width: side,
+                mapping: mapping(&maps[k], side),
+            })
+            .collect();
+        let region = Region::centred(16.0, 16.0);
+        let checks = check(&reference, &ref_h, region, &frames);
+        assert_eq!(checks.len(), 10);
+        for c in &checks {
+            let s = c
+                .shift_mm
+                .unwrap_or_else(|| panic!("frame {} unverified: {c:?}", c.frame));
+            if (20..=30).contains(&c.frame) {
+                assert!((s - 5.0).abs() < 0.3, "frame {}: {s} mm", c.frame);
+                assert!(c.inconsistent(1.0));
+            } else {
+                assert!(s < 0.3, "frame {}: {s} mm", c.frame);
+                assert!(!c.inconsistent(1.0));
+            }
+        }
+    }
+
     #[test]
     fn ranges_group_consecutive_frames() {
         assert_eq!(ranges(&[5, 10, 15, 40, 45, 90]), "5-15, 40-45, 90");
