@@ -143,6 +143,9 @@ pub struct AlignSummary {
     /// The self-check of every registered frame against the reference photo.
     #[serde(default)]
     pub self_check: Vec<selfcheck::FrameCheck>,
+    /// Share of the region seen by at least [`COVERAGE_VIEWS`] kept flash frames.
+    #[serde(default)]
+    pub coverage: f64,
 }
 
 /// What happened to the second stream of a two-camera capture.
@@ -350,6 +353,21 @@ pub fn align(
     } else {
         Vec::new()
     };
+    let region = cfg.region.unwrap_or_else(|| reference.marker_region());
+    let (covered, missed) = coverage(&result, region)?;
+    if covered < MIN_COVERAGE {
+        return Err(AlignError::Video(format!(
+            "only {:.0}% of the region is seen by at least {COVERAGE_VIEWS} registered frames (expected at least {:.0}%); the part missed is {missed}. Film again sweeping over that part too, or pass --region to capture less",
+            100.0 * covered,
+            100.0 * MIN_COVERAGE
+        )));
+    }
+    if covered < GOOD_COVERAGE {
+        warnings.push(format!(
+            "only {:.1}% of the region is seen by at least {COVERAGE_VIEWS} registered frames; the part missed ({missed}) will be filled from neighbouring clusters, not measured",
+            100.0 * covered
+        ));
+    }
     if let Some(v) = &inputs.video {
         let probe = svbrdf_cv::probe::probe_video(v)?;
         if probe.bit_depth > 8 {
@@ -385,6 +403,7 @@ pub fn align(
         timer.0,
         warnings,
         checks,
+        covered,
         progress,
     )
 }
@@ -396,7 +415,32 @@ fn self_check(
     reference: &reference::ReferenceFrame,
     region: svbrdf_core::plane::Region,
 ) -> Result<Vec<selfcheck::FrameCheck>, AlignError> {
-    let mut frames = Vec::with_capacity(reg.frames.len());
+    let prepared = prepared_mappings(reg)?;
+    let frames: Vec<selfcheck::CheckedFrame> = reg
+        .frames
+        .iter()
+        .zip(prepared)
+        .map(|(f, mapping)| selfcheck::CheckedFrame {
+            frame: f.index,
+            stream: f.stream,
+            thumb: &f.thumb,
+            width: f.width,
+            mapping,
+        })
+        .collect();
+    Ok(selfcheck::check(
+        ref_img,
+        &reference.plane_from_pixel,
+        region,
+        &frames,
+    ))
+}
+
+/// Each registered frame's mapping, ready for evaluation.
+fn prepared_mappings(
+    reg: &matching::Registration,
+) -> Result<Vec<svbrdf_core::capture::PreparedMapping>, AlignError> {
+    let mut out = Vec::with_capacity(reg.frames.len());
     for ((f, m), pose) in reg.frames.iter().zip(&reg.mappings).zip(&reg.poses) {
         let frame = svbrdf_core::capture::Frame {
             id: 0,
@@ -418,19 +462,98 @@ fn self_check(
             camera_position: pose.centre.into(),
             light_position: pose.centre.into(),
         };
-        frames.push(selfcheck::CheckedFrame {
-            frame: f.index,
-            stream: f.stream,
-            thumb: &f.thumb,
-            width: f.width,
-            mapping: svbrdf_core::capture::PreparedMapping::new(&frame)?,
-        });
+        out.push(svbrdf_core::capture::PreparedMapping::new(&frame)?);
     }
-    Ok(selfcheck::check(
-        ref_img,
-        &reference.plane_from_pixel,
-        region,
-        &frames,
+    Ok(out)
+}
+
+/// Least share of the region that kept flash frames must see at least
+/// [`COVERAGE_VIEWS`] times; below it the capture is refused.
+pub const MIN_COVERAGE: f64 = 0.8;
+/// Below this share a warning says which part of the region is thin.
+pub const GOOD_COVERAGE: f64 = 0.97;
+/// Views a plane point needs to count as covered.
+pub const COVERAGE_VIEWS: u32 = 3;
+
+/// Share of the region seen by at least [`COVERAGE_VIEWS`] kept flash frames, and a
+/// description of where the rest lies (5 mm cells).
+fn coverage(
+    reg: &matching::Registration,
+    region: svbrdf_core::plane::Region,
+) -> Result<(f64, String), AlignError> {
+    use rayon::prelude::*;
+    let grid = svbrdf_core::plane::PlaneGrid::new(region, 2.0)?;
+    let prepared = prepared_mappings(reg)?;
+    let flash: Vec<(&svbrdf_core::capture::PreparedMapping, &frames::FrameData)> = prepared
+        .iter()
+        .zip(&reg.frames)
+        .filter(|(_, f)| f.stream == 0)
+        .collect();
+    let views: Vec<u32> = (0..grid.len())
+        .into_par_iter()
+        .map(|i| {
+            let q = grid.pixel_centre(i % grid.width, i / grid.width);
+            flash
+                .iter()
+                .filter(|(m, f)| {
+                    m.plane_to_pixel(q).is_some_and(|p| {
+                        p.x >= -0.5
+                            && p.y >= -0.5
+                            && p.x <= f64::from(f.width) - 0.5
+                            && p.y <= f64::from(f.height) - 0.5
+                    })
+                })
+                .count() as u32
+        })
+        .collect();
+    let thin: Vec<usize> = (0..views.len())
+        .filter(|&i| views[i] < COVERAGE_VIEWS)
+        .collect();
+    let share = 1.0 - thin.len() as f64 / views.len().max(1) as f64;
+    if thin.is_empty() {
+        return Ok((share, String::new()));
+    }
+    let pts: Vec<svbrdf_core::geometry::Vec2> = thin
+        .iter()
+        .map(|&i| grid.pixel_centre(i % grid.width, i / grid.width))
+        .collect();
+    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
+    let mut c = svbrdf_core::geometry::Vec2::zeros();
+    for p in &pts {
+        x0 = x0.min(p.x);
+        x1 = x1.max(p.x);
+        y0 = y0.min(p.y);
+        y1 = y1.max(p.y);
+        c += p;
+    }
+    c /= pts.len() as f64;
+    let (cx, cy) = (
+        (c.x - 0.5 * (region.x_min + region.x_max)) / region.width(),
+        (c.y - 0.5 * (region.y_min + region.y_max)) / region.height(),
+    );
+    let vertical = if cy > 0.17 {
+        "top"
+    } else if cy < -0.17 {
+        "bottom"
+    } else {
+        ""
+    };
+    let horizontal = if cx > 0.17 {
+        "right"
+    } else if cx < -0.17 {
+        "left"
+    } else {
+        ""
+    };
+    let part = match (vertical, horizontal) {
+        ("", "") => "middle".to_string(),
+        (v, "") => format!("{v} edge"),
+        ("", h) => format!("{h} edge"),
+        (v, h) => format!("{v}-{h} corner"),
+    };
+    Ok((
+        share,
+        format!("mostly the {part}: x {x0:.1} to {x1:.1} cm, y {y0:.1} to {y1:.1} cm"),
     ))
 }
 

@@ -1063,9 +1063,13 @@ pub fn register(
         d.unregistered = (n_flash..n).filter(|&i| init[i].is_none()).count();
     }
     if registered.is_empty() {
-        return Err(AlignError::Connect(
-            "no frame could be tied to the plane: no markers seen and no matches with the reference photo".into(),
-        ));
+        let partial = frames.iter().filter(|f| !f.markers.is_empty()).count();
+        return Err(AlignError::Connect(format!(
+            "no frame could be tied to the plane: of the {n} connected sharp frames sampled (every {}th of {} decoded), {with_markers} showed a whole marker of the reference photo's ({partial} any marker of the dictionary) and {reference_anchored} matched the reference photo well enough ({} verified matches needed); expected at least one of either. Film passing slowly over each marker so that it is fully in view for a moment, or lower frame_step in the camera description to sample more frames",
+            cfg.camera.frame_step,
+            drops.decoded,
+            cfg.fine_min_inliers
+        )));
     }
 
     // Global solve over all sub-frames of registered frames (each stream has its

@@ -75,6 +75,7 @@ pub fn write(
     mut timings: Vec<(String, f64)>,
     warnings: Vec<String>,
     self_check: Vec<crate::selfcheck::FrameCheck>,
+    coverage: f64,
     progress: &dyn Progress,
 ) -> Result<AlignSummary, AlignError> {
     let t0 = std::time::Instant::now();
@@ -279,6 +280,7 @@ pub fn write(
         second,
         warnings,
         self_check,
+        coverage,
     };
     #[derive(serde::Serialize)]
     struct Record<'a> {

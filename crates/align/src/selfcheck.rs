@@ -32,6 +32,9 @@ const SEARCH_COARSE: i32 = 10;
 const SEARCH_FINE: i32 = 6;
 /// A block matches clearly above this correlation.
 const MIN_SCORE: f64 = 0.6;
+/// A match away from the registered position must beat the best one near it by this
+/// much correlation to count.
+const AMBIGUITY: f64 = 0.1;
 /// A block needs this share of its cells seen (and unclipped) in both images.
 const MIN_VALID: f64 = 0.6;
 
@@ -351,7 +354,10 @@ fn check_frame(
                 .count();
             if (seen as f64) >= MIN_VALID * (n * n) as f64 {
                 blocks += 1;
-                if let Some((c, _, _)) = best_shift(
+                let (fx, fy) = ((bx * COARSE) as i64, (by * COARSE) as i64);
+                // Near the registered position, and anywhere in the search range.
+                let local = best_shift(fine, ref_fine, fx, fy, n * COARSE, (0, 0), SEARCH_FINE);
+                let global = best_shift(
                     &coarse,
                     ref_coarse,
                     bx as i64,
@@ -359,19 +365,24 @@ fn check_frame(
                     n,
                     (0, 0),
                     SEARCH_COARSE,
-                ) {
-                    let (fx, fy) = ((bx * COARSE) as i64, (by * COARSE) as i64);
+                )
+                .and_then(|(c, _, _)| {
                     let centre = (c.0 * COARSE as i64, c.1 * COARSE as i64);
-                    if let Some((s, v, nb)) =
-                        best_shift(fine, ref_fine, fx, fy, n * COARSE, centre, SEARCH_FINE)
-                    {
-                        if v >= MIN_SCORE {
-                            let dx = s.0 as f64 + parabola(nb[0], v, nb[1]);
-                            let dy = s.1 as f64 + parabola(nb[2], v, nb[3]);
-                            shifts.push(10.0 * dx.hypot(dy) / FINE_PX_PER_CM);
-                            scores.push(v);
-                        }
-                    }
+                    best_shift(fine, ref_fine, fx, fy, n * COARSE, centre, SEARCH_FINE)
+                });
+                // A far match counts only when it is clearly better than the best near
+                // the registered position: on a repetitive texture several positions
+                // match about equally, and the registration's own is then believed.
+                let chosen = match (local, global) {
+                    (Some(l), Some(g)) if l.1 >= g.1 - AMBIGUITY => Some(l),
+                    (_, Some(g)) => Some(g),
+                    (l, None) => l,
+                };
+                if let Some((s, v, nb)) = chosen.filter(|c| c.1 >= MIN_SCORE) {
+                    let dx = s.0 as f64 + parabola(nb[0], v, nb[1]);
+                    let dy = s.1 as f64 + parabola(nb[2], v, nb[3]);
+                    shifts.push(10.0 * dx.hypot(dy) / FINE_PX_PER_CM);
+                    scores.push(v);
                 }
             }
             bx += step;

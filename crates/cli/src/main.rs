@@ -181,6 +181,10 @@ struct AlignArgs {
     /// Test all frame pairs in coarse alignment (slow; for benchmarks).
     #[arg(long)]
     all_pairs: bool,
+    /// Skip the check of every registered frame against the reference photo (frames
+    /// that disagree are then kept, and nothing refuses a drifted registration).
+    #[arg(long)]
+    no_self_check: bool,
     /// Fine-match each frame with at most this many of its strongest coarse connections
     /// (the time chain is always kept); default 8.
     #[arg(long)]
@@ -268,6 +272,7 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
         })?);
     }
     c.all_pairs = a.all_pairs;
+    c.self_check.enabled = !a.no_self_check;
     if let Some(v) = a.max_pairs_per_frame {
         c.max_pairs_per_frame = v;
     }
@@ -331,6 +336,16 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     if let Some(t) = &s.second {
         say!("second video: {}", t.describe());
     }
+    let checked: Vec<f64> = s.self_check.iter().filter_map(|c| c.shift_mm).collect();
+    let worst = checked.iter().copied().fold(0.0, f64::max);
+    say!(
+        "coverage: {:.1}% of the region seen by at least {} kept frames; self-check against the reference photo: {} of {} frames verified, largest median offset {:.2} mm",
+        100.0 * s.coverage,
+        svbrdf_align::COVERAGE_VIEWS,
+        checked.len(),
+        s.self_check.len(),
+        worst
+    );
     say!(
         "global solve: {} unknowns, {} iterations (+{} reusing a factorisation), residual rms {:.4} cm, median {:.4} cm",
         s.unknowns,

@@ -301,6 +301,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         fine_inlier_px: None,
         subframes: None,
         all_pairs: false,
+        no_self_check: false,
         max_pairs_per_frame: None,
         second: a.second.clone(),
         overwrite: true,

@@ -295,6 +295,35 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
                 ),
             ));
         }
+        let checks = a["summary"]["self_check"]
+            .as_array()
+            .cloned()
+            .unwrap_or_default();
+        let verified: Vec<f64> = checks
+            .iter()
+            .filter_map(|c| c["shift_mm"].as_f64())
+            .collect();
+        if !checks.is_empty() {
+            rows.push((
+                "self-check".into(),
+                format!(
+                    "{} of {} registered frames verified against the reference photo; largest median offset {:.2} mm; {} frames dropped as inconsistent",
+                    verified.len(),
+                    checks.len(),
+                    verified.iter().copied().fold(0.0, f64::max),
+                    a["summary"]["frames"]["inconsistent"].as_u64().unwrap_or(0)
+                ),
+            ));
+        }
+        if let Some(c) = a["summary"]["coverage"].as_f64() {
+            rows.push((
+                "coverage".into(),
+                format!(
+                    "{:.1}% of the region seen by at least 3 registered frames",
+                    100.0 * c
+                ),
+            ));
+        }
         rows.push((
             "alignment".into(),
             format!(
