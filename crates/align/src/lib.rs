@@ -87,6 +87,12 @@ pub struct DropCounts {
     pub decoded: usize,
     /// Dropped by the blur metric.
     pub blurry: usize,
+    /// Their frame numbers.
+    #[serde(default)]
+    pub blurry_frames: Vec<u64>,
+    /// Every decoded frame's number and blur metric (eq. 1; higher is sharper).
+    #[serde(default)]
+    pub blur_metrics: Vec<(u64, f64)>,
     /// Not in the largest connected component.
     pub disconnected: usize,
     /// No usable homography (too few fine matches).
@@ -357,14 +363,14 @@ pub fn align(
     let (covered, missed) = coverage(&result, region)?;
     if covered < MIN_COVERAGE {
         return Err(AlignError::Video(format!(
-            "only {:.0}% of the region is seen by at least {COVERAGE_VIEWS} registered frames (expected at least {:.0}%); the part missed is {missed}. Film again sweeping over that part too, or pass --region to capture less",
+            "only {:.0}% of the region is seen by at least {COVERAGE_VIEWS} registered frames (expected at least {:.0}%); thin: {missed}. Film again sweeping over that part too, or pass --region to capture less",
             100.0 * covered,
             100.0 * MIN_COVERAGE
         )));
     }
     if covered < GOOD_COVERAGE {
         warnings.push(format!(
-            "only {:.1}% of the region is seen by at least {COVERAGE_VIEWS} registered frames; the part missed ({missed}) will be filled from neighbouring clusters, not measured",
+            "only {:.1}% of the region is seen by at least {COVERAGE_VIEWS} registered frames; thin: {missed}; those parts will be filled from neighbouring clusters, not measured",
             100.0 * covered
         ));
     }
@@ -469,7 +475,7 @@ fn prepared_mappings(
 
 /// Least share of the region that kept flash frames must see at least
 /// [`COVERAGE_VIEWS`] times; below it the capture is refused.
-pub const MIN_COVERAGE: f64 = 0.8;
+pub const MIN_COVERAGE: f64 = 0.6;
 /// Below this share a warning says which part of the region is thin.
 pub const GOOD_COVERAGE: f64 = 0.97;
 /// Views a plane point needs to count as covered.
@@ -513,48 +519,36 @@ fn coverage(
     if thin.is_empty() {
         return Ok((share, String::new()));
     }
-    let pts: Vec<svbrdf_core::geometry::Vec2> = thin
-        .iter()
-        .map(|&i| grid.pixel_centre(i % grid.width, i / grid.width))
-        .collect();
-    let (mut x0, mut x1, mut y0, mut y1) = (f64::MAX, f64::MIN, f64::MAX, f64::MIN);
-    let mut c = svbrdf_core::geometry::Vec2::zeros();
-    for p in &pts {
-        x0 = x0.min(p.x);
-        x1 = x1.max(p.x);
-        y0 = y0.min(p.y);
-        y1 = y1.max(p.y);
-        c += p;
+    // Name the ninths of the region where most cells are thin.
+    let mut thin_in = [[0usize; 3]; 3];
+    let mut all_in = [[0usize; 3]; 3];
+    for i in 0..views.len() {
+        let (c, r) = (i % grid.width, i / grid.width);
+        let (sx, sy) = ((3 * c / grid.width).min(2), (3 * r / grid.height).min(2));
+        all_in[sy][sx] += 1;
+        if views[i] < COVERAGE_VIEWS {
+            thin_in[sy][sx] += 1;
+        }
     }
-    c /= pts.len() as f64;
-    let (cx, cy) = (
-        (c.x - 0.5 * (region.x_min + region.x_max)) / region.width(),
-        (c.y - 0.5 * (region.y_min + region.y_max)) / region.height(),
-    );
-    let vertical = if cy > 0.17 {
-        "top"
-    } else if cy < -0.17 {
-        "bottom"
+    let names = [
+        ["top-left corner", "top edge", "top-right corner"],
+        ["left edge", "middle", "right edge"],
+        ["bottom-left corner", "bottom edge", "bottom-right corner"],
+    ];
+    let mut parts = Vec::new();
+    for sy in 0..3 {
+        for sx in 0..3 {
+            if all_in[sy][sx] > 0 && thin_in[sy][sx] * 2 > all_in[sy][sx] {
+                parts.push(names[sy][sx]);
+            }
+        }
+    }
+    let missed = if parts.is_empty() {
+        "scattered patches across the region".to_string()
     } else {
-        ""
+        format!("the {}", parts.join(", "))
     };
-    let horizontal = if cx > 0.17 {
-        "right"
-    } else if cx < -0.17 {
-        "left"
-    } else {
-        ""
-    };
-    let part = match (vertical, horizontal) {
-        ("", "") => "middle".to_string(),
-        (v, "") => format!("{v} edge"),
-        ("", h) => format!("{h} edge"),
-        (v, h) => format!("{v}-{h} corner"),
-    };
-    Ok((
-        share,
-        format!("mostly the {part}: x {x0:.1} to {x1:.1} cm, y {y0:.1} to {y1:.1} cm"),
-    ))
+    Ok((share, missed))
 }
 
 /// Drop the frames the self-check found inconsistent with the reference photo, or

@@ -749,16 +749,17 @@ fn normaliser(w: u32, h: u32) -> Mat3 {
 }
 
 /// The frames the blur metric keeps (eq. 1, per stream) and how many it drops.
-fn drop_blurry(frames: Vec<FrameData>, sigmas: f64) -> (Vec<FrameData>, usize) {
+fn drop_blurry(frames: Vec<FrameData>, sigmas: f64) -> (Vec<FrameData>, Vec<u64>) {
     let metrics: Vec<f64> = frames.iter().map(|f| f.blur).collect();
     let blurry: BTreeSet<usize> = blurry_frames(&metrics, sigmas).into_iter().collect();
+    let dropped = blurry.iter().map(|&i| frames[i].index).collect();
     let sharp = frames
         .into_iter()
         .enumerate()
         .filter(|(i, _)| !blurry.contains(i))
         .map(|(_, f)| f)
         .collect();
-    (sharp, blurry.len())
+    (sharp, dropped)
 }
 
 /// Linear interpolation of a time-sorted track; `None` outside its span (one
@@ -796,13 +797,15 @@ pub fn register(
     } = streams;
     let mut drops = DropCounts {
         decoded: decoded.len(),
+        blur_metrics: decoded.iter().map(|f| (f.index, f.blur)).collect(),
         ..DropCounts::default()
     };
     // Blur selection (video frames only: a still photo was taken on purpose, and a
     // handful of them gives no statistics).
     let frames = if ordered {
         let (sharp, blurry) = drop_blurry(decoded, cfg.blur_sigmas);
-        drops.blurry = blurry;
+        drops.blurry = blurry.len();
+        drops.blurry_frames = blurry;
         sharp
     } else {
         decoded
@@ -897,7 +900,8 @@ pub fn register(
         let (kept2, blurry2) = drop_blurry(sec.frames, cfg.blur_sigmas);
         second_drops = Some(DropCounts {
             decoded: decoded2,
-            blurry: blurry2,
+            blurry: blurry2.len(),
+            blurry_frames: blurry2,
             ..DropCounts::default()
         });
         let (base, m) = (frames.len(), kept2.len());
