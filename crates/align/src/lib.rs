@@ -522,11 +522,11 @@ fn coverage(
     // Name the ninths of the region where most cells are thin.
     let mut thin_in = [[0usize; 3]; 3];
     let mut all_in = [[0usize; 3]; 3];
-    for i in 0..views.len() {
+    for (i, v) in views.iter().enumerate() {
         let (c, r) = (i % grid.width, i / grid.width);
         let (sx, sy) = ((3 * c / grid.width).min(2), (3 * r / grid.height).min(2));
         all_in[sy][sx] += 1;
-        if views[i] < COVERAGE_VIEWS {
+        if *v < COVERAGE_VIEWS {
             thin_in[sy][sx] += 1;
         }
     }
