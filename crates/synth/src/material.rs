@@ -514,7 +514,7 @@ fn bathroom_tiles(seed: u64, x: f64, y: f64, f: f64) -> Texel {
     let colour = COLOURS[((h * 5.0) as usize).min(4)];
     // The glaze: weak, smooth variation (real tiles are nearly uniform).
     let t = fbm(seed ^ 0x61A2, x / (6.0 * f), y / (6.0 * f), 4);
-    let tex = 0.92 + 0.16 * t;
+    let tex = 0.98 + 0.04 * t;
     let mut rho_d = colour.map(|v| v * tex);
     // The motif, identical on every motif tile: a dark ring and a centred diamond.
     if crate::noise::hash2(seed ^ 0x3071F, iu, iv) < 0.25 {

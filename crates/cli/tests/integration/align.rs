@@ -231,3 +231,63 @@ fn alignment_is_reproducible_byte_for_byte() {
         "two alignments of the same video differ"
     );
 }
+
+/// The `hard-small` preset (glazed tiles, markers fully in view in about 12% of the
+/// frames, a rolled and tilted no-flash reference photo, k1 drawn per capture): the
+/// registration is accurate in the markers' world frame, every frame passes the
+/// self-check, and align.json records the reference camera, coverage and self-check.
+#[test]
+fn hard_small_tiles_align_within_the_issue_18_bounds() {
+    let cap = temp_dir().join("hard");
+    let o = svbrdf(&[
+        "synth",
+        "--preset",
+        "hard-small",
+        "--seed",
+        "2",
+        "--out",
+        cap.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = temp_dir().join("aligned");
+    let o = align(&cap, &out, &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let rec: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("align.json")).unwrap()).unwrap();
+    assert_eq!(rec["reference_camera"]["axes"], "markers");
+    assert_eq!(
+        rec["reference_camera"]["marker_corners_cm"]
+            .as_array()
+            .unwrap()
+            .len(),
+        4
+    );
+    let s = &rec["summary"];
+    assert!(s["coverage"].as_f64().unwrap() > 0.9, "{s}");
+    let checks = s["self_check"].as_array().unwrap();
+    assert!(!checks.is_empty());
+    assert!(
+        checks
+            .iter()
+            .all(|c| c["shift_mm"].as_f64().is_some_and(|m| m < 1.0)),
+        "{checks:?}"
+    );
+    let o = svbrdf(&[
+        "bench",
+        "--no-brdf",
+        "--align-capture",
+        out.to_str().unwrap(),
+        "--truth",
+        cap.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
+    eprintln!("{v}");
+    let get = |k: &str| v[k].as_f64().unwrap();
+    // Issue 18's bounds: median 0.25 px, every frame's p95 under 1 px, camera 2 mm
+    // (measured: 0.17, 0.81, 0.61).
+    assert!(get("align_error_px_median") < 0.25, "{v}");
+    assert!(get("worst_frame_px_p95") < 1.0, "{v}");
+    assert!(get("camera_error_mm_median") < 2.0, "{v}");
+}
