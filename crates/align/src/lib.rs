@@ -16,8 +16,10 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 pub mod blur;
+mod coarse;
 pub mod config;
 pub mod corners;
+mod fine;
 mod frames;
 mod matching;
 pub mod output;
@@ -26,6 +28,7 @@ pub mod pose;
 pub mod reference;
 pub mod selfcheck;
 pub mod solve;
+mod subframes;
 pub mod sync;
 
 use std::path::{Path, PathBuf};
@@ -34,9 +37,9 @@ use std::time::Instant;
 use svbrdf_core::CoreError;
 use svbrdf_cv::CvError;
 
+pub use coarse::Connectivity;
 pub use config::{AlignConfig, CameraDescription, FineMethod};
 pub use frames::FrameData;
-pub use matching::Connectivity;
 
 /// Errors of the geometry stage.
 #[derive(Debug, thiserror::Error)]
@@ -299,7 +302,7 @@ pub fn align(
     };
     timer.lap("decode + features");
     let ref_features = if cfg.match_reference {
-        Some(matching::reference_features(&ref_img, &reference, cfg)?)
+        Some(fine::reference_features(&ref_img, &reference, cfg)?)
     } else {
         None
     };

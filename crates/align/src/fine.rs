@@ -1,0 +1,291 @@
+//! Fine correspondences (paper 3.1.3): matches between connected frames and with the
+//! reference photo, located to a fraction of a pixel at full resolution.
+
+use svbrdf_core::geometry::{Mat3, Vec2};
+use svbrdf_core::homography::Homography;
+use svbrdf_core::image::ImageU8;
+use svbrdf_cv::features::{
+    downscaled, estimate_homography, match_into, match_one_to_one, sift, Features, MatchIndex,
+    Robust,
+};
+
+use crate::coarse::*;
+use crate::config::{AlignConfig, FineMethod};
+use crate::frames::FrameData;
+use crate::patch::{refine, Grey, PatchSettings};
+use crate::reference::ReferenceFrame;
+use crate::AlignError;
+
+/// Verified correspondences (frame a px, frame b px) and the homography a -> b.
+pub(crate) type FineMatch = (Vec<[f64; 2]>, Vec<[f64; 2]>, Mat3);
+
+/// Features of the reference photo with their plane positions (cm).
+pub struct ReferenceFeatures {
+    pub(crate) features: Features,
+    /// Full-resolution reference pixels of the features.
+    pub(crate) pixels: Vec<Vec2>,
+    pub(crate) plane: Vec<Vec2>,
+    /// Full-resolution luminance, for `FineMethod::Patch`.
+    pub(crate) grey: Option<Grey>,
+    /// plane_from_pixel of the reference photo.
+    pub(crate) plane_from_pixel: Homography,
+    /// Search index of the features (`FineMethod::Patch`), built once for all frames.
+    pub(crate) index: Option<MatchIndex>,
+}
+
+/// Reference-photo features for absolute anchoring of frames. With patch refinement
+/// they are matched with the frames' coarse features, so they are detected at about
+/// the same density per cm: the reference is taken from about twice the frames'
+/// height, so at twice the coarse long side, with four times the features.
+pub fn reference_features(
+    img: &ImageU8,
+    rf: &ReferenceFrame,
+    cfg: &AlignConfig,
+) -> Result<ReferenceFeatures, AlignError> {
+    let long = img.width.max(img.height) as f64;
+    let (side, count) = match cfg.fine_method {
+        FineMethod::Sift => (f64::from(cfg.fine_long_side), cfg.fine_features * 2),
+        FineMethod::Patch => (
+            2.0 * f64::from(cfg.coarse_long_side),
+            cfg.coarse_features * 4,
+        ),
+    };
+    let s = (side / long).min(1.0);
+    let small = downscaled(img, s)?;
+    let f = sift(&small, count, cfg.sift_contrast, None)?;
+    let mut plane = Vec::with_capacity(f.len());
+    let mut pixels = Vec::with_capacity(f.len());
+    for p in &f.points {
+        let full = Vec2::new(
+            (f64::from(p[0]) + 0.5) / s - 0.5,
+            (f64::from(p[1]) + 0.5) / s - 0.5,
+        );
+        pixels.push(full);
+        plane.push(rf.plane_from_pixel.apply(full).unwrap_or_else(Vec2::zeros));
+    }
+    let grey = (cfg.fine_method == FineMethod::Patch).then(|| Grey::from_image(img));
+    let index = match cfg.fine_method {
+        FineMethod::Patch => Some(MatchIndex::new(&f)?),
+        FineMethod::Sift => None,
+    };
+    Ok(ReferenceFeatures {
+        index,
+        features: f,
+        pixels,
+        plane,
+        grey,
+        plane_from_pixel: rf.plane_from_pixel,
+    })
+}
+
+/// The fine minimum inlier count for this frame size.
+pub(crate) fn fine_min(f: &FrameData, cfg: &AlignConfig) -> usize {
+    let long = f64::from(f.width.max(f.height));
+    let fs = (f64::from(cfg.fine_long_side) / long).min(1.0);
+    AlignConfig::scaled_min(
+        cfg.fine_min_inliers,
+        3840.0 * 2160.0,
+        f64::from(f.width) * f64::from(f.height) * fs * fs,
+    )
+}
+
+/// Verified fine correspondences between frames a and b (full-resolution pixels).
+pub(crate) fn fine_pair(
+    a: &FrameData,
+    b: &FrameData,
+    coarse_matches: Option<&[(u32, u32)]>,
+    cfg: &AlignConfig,
+) -> Result<Option<FineMatch>, AlignError> {
+    if cfg.fine_method == FineMethod::Patch {
+        return fine_pair_patch(a, b, coarse_matches, cfg);
+    }
+    let m = match_one_to_one(&a.fine, &b.fine, 0.8)?;
+    let min = fine_min(a, cfg);
+    if m.len() < min {
+        return Ok(None);
+    }
+    let long = f64::from(a.width.max(a.height));
+    let thr = cfg.fine_inlier_px * long / 3840.0;
+    let src = pts(&a.fine, m.iter().map(|x| x.0));
+    let dst = pts(&b.fine, m.iter().map(|x| x.1));
+    let Some(Robust {
+        model: h,
+        inliers: inl,
+    }) = estimate_homography(&src, &dst, thr)?
+    else {
+        return Ok(None);
+    };
+    let keep: Vec<usize> = (0..inl.len()).filter(|&k| inl[k]).collect();
+    if keep.len() < min {
+        return Ok(None);
+    }
+    Ok(Some((
+        keep.iter().map(|&k| src[k]).collect(),
+        keep.iter().map(|&k| dst[k]).collect(),
+        svbrdf_core::geometry::mat3_from_rows(&h),
+    )))
+}
+
+/// Patch settings for a frame of `long` full-resolution pixels whose patch image is
+/// `grey_long` pixels: the radius scales with the patch image, the search covers the
+/// coarse features' localisation error (about one coarse pixel).
+pub(crate) fn patch_settings(cfg: &AlignConfig, long: f64, grey_long: f64) -> PatchSettings {
+    let coarse_px = grey_long / f64::from(cfg.coarse_long_side).min(long);
+    PatchSettings {
+        radius: (cfg.patch_radius_px * grey_long / 3840.0).round().max(5.0) as usize,
+        search: (coarse_px.round() as i32).clamp(3, 8),
+        ..PatchSettings::default()
+    }
+}
+
+/// Full-resolution pixel to patch-image pixel (pixel centres at integers).
+pub(crate) fn to_grey(p: Vec2, s: f64) -> Vec2 {
+    Vec2::new((p.x + 0.5) * s - 0.5, (p.y + 0.5) * s - 0.5)
+}
+
+/// Refine coarse correspondences `(a px, b px)` (full resolution) by patches: `a`'s
+/// point stays, `b`'s moves to where `a`'s patch, warped by the local linear part of
+/// `h_ab`, matches best. Returns the kept pairs, full-resolution pixels.
+pub(crate) fn refine_matches(
+    (ga, width_a): (&Grey, u32),
+    (gb, width_b): (&Grey, u32),
+    matches: impl Iterator<Item = (Vec2, Vec2)>,
+    h_ab: &Mat3,
+    settings: &PatchSettings,
+) -> Vec<([f64; 2], Vec2)> {
+    let (sa, sb) = (
+        ga.width as f64 / f64::from(width_a),
+        gb.width as f64 / f64::from(width_b),
+    );
+    let Some(h_ba) = h_ab.try_inverse().map(Homography) else {
+        return Vec::new();
+    };
+    matches
+        .filter_map(|(p, q)| {
+            // b -> a offsets, in patch-image pixels of each.
+            let f0 = h_ba.apply(q)?;
+            let fx = h_ba.apply(q + Vec2::new(1.0, 0.0))? - f0;
+            let fy = h_ba.apply(q + Vec2::new(0.0, 1.0))? - f0;
+            let k = sa / sb;
+            let jac = [k * fx.x, k * fy.x, k * fx.y, k * fy.y];
+            let (qr, _) = refine(ga, to_grey(p, sa), gb, to_grey(q, sb), jac, settings)?;
+            let q_full = Vec2::new((qr.x + 0.5) / sb - 0.5, (qr.y + 0.5) / sb - 0.5);
+            Some(([p.x, p.y], q_full))
+        })
+        .collect()
+}
+
+/// [`fine_pair`] by patch refinement of the coarse matches (those of the coarse stage
+/// where given, else matched here).
+pub(crate) fn fine_pair_patch(
+    a: &FrameData,
+    b: &FrameData,
+    coarse_matches: Option<&[(u32, u32)]>,
+    cfg: &AlignConfig,
+) -> Result<Option<FineMatch>, AlignError> {
+    let (Some(ga), Some(gb)) = (a.grey.as_deref(), b.grey.as_deref()) else {
+        return Ok(None);
+    };
+    let m = match coarse_matches {
+        Some(m) => m.to_vec(),
+        None => match_one_to_one(&a.coarse, &b.coarse, 0.8)?,
+    };
+    let min = fine_min(a, cfg);
+    if m.len() < min {
+        return Ok(None);
+    }
+    let long = f64::from(a.width.max(a.height));
+    let thr = cfg.fine_inlier_px * long / 3840.0;
+    let src = pts(&a.coarse, m.iter().map(|x| x.0));
+    let dst = pts(&b.coarse, m.iter().map(|x| x.1));
+    let Some(Robust { model, inliers }) = estimate_homography(&src, &dst, thr)? else {
+        return Ok(None);
+    };
+    let h = svbrdf_core::geometry::mat3_from_rows(&model);
+    let settings = patch_settings(cfg, long, ga.width.max(ga.height) as f64);
+    let refined = refine_matches(
+        (ga, a.width),
+        (gb, b.width),
+        (0..src.len()).filter(|&k| inliers[k]).map(|k| {
+            (
+                Vec2::new(src[k][0], src[k][1]),
+                Vec2::new(dst[k][0], dst[k][1]),
+            )
+        }),
+        &h,
+        &settings,
+    );
+    if refined.len() < min {
+        return Ok(None);
+    }
+    Ok(Some((
+        refined.iter().map(|r| r.0).collect(),
+        refined.iter().map(|r| [r.1.x, r.1.y]).collect(),
+        h,
+    )))
+}
+
+/// Absolute anchors of one frame from the reference photo by patch refinement:
+/// (frame px, plane cm).
+pub(crate) fn reference_anchors_patch(
+    f: &FrameData,
+    rfe: &ReferenceFeatures,
+    cfg: &AlignConfig,
+    thr_cm: f64,
+) -> Result<Vec<([f64; 2], Vec2)>, AlignError> {
+    let (Some(ga), Some(gr), Some(index)) = (f.grey.as_deref(), rfe.grey.as_ref(), &rfe.index)
+    else {
+        return Ok(Vec::new());
+    };
+    let m = match_into(&f.coarse, index, 0.8)?;
+    let min = fine_min(f, cfg);
+    if m.len() < min {
+        return Ok(Vec::new());
+    }
+    let src = pts(&f.coarse, m.iter().map(|x| x.0));
+    let dst: Vec<[f64; 2]> = m
+        .iter()
+        .map(|x| [rfe.pixels[x.1 as usize].x, rfe.pixels[x.1 as usize].y])
+        .collect();
+    // The inlier distance on the plane in reference pixels.
+    let c = Vec2::new(0.5 * gr.width as f64, 0.5 * gr.height as f64);
+    let cm_per_ref_px = match (
+        rfe.plane_from_pixel.apply(c),
+        rfe.plane_from_pixel.apply(c + Vec2::new(1.0, 0.0)),
+    ) {
+        (Some(a), Some(b)) => (a - b).norm().max(1e-9),
+        _ => return Ok(Vec::new()),
+    };
+    let Some(Robust { model, inliers }) = estimate_homography(&src, &dst, thr_cm / cm_per_ref_px)?
+    else {
+        return Ok(Vec::new());
+    };
+    let keep: Vec<usize> = (0..src.len()).filter(|&k| inliers[k]).collect();
+    if keep.len() < min {
+        return Ok(Vec::new());
+    }
+    let h_fr = Homography(svbrdf_core::geometry::mat3_from_rows(&model));
+    let (fp, rp): (Vec<Vec2>, Vec<Vec2>) = keep
+        .iter()
+        .map(|&k| {
+            (
+                Vec2::new(src[k][0], src[k][1]),
+                Vec2::new(dst[k][0], dst[k][1]),
+            )
+        })
+        .unzip();
+    let long = f64::from(f.width.max(f.height));
+    let settings = patch_settings(cfg, long, ga.width.max(ga.height) as f64);
+    let refined = refine_matches(
+        (ga, f.width),
+        (gr, gr.width as u32),
+        fp.into_iter().zip(rp),
+        &h_fr.0,
+        &settings,
+    );
+    let out: Vec<([f64; 2], Vec2)> = refined
+        .into_iter()
+        .filter_map(|(p, r)| Some((p, rfe.plane_from_pixel.apply(r)?)))
+        .collect();
+    Ok(if out.len() >= min { out } else { Vec::new() })
+}
