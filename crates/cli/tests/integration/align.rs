@@ -27,6 +27,23 @@ fn align(cap: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
     svbrdf(&refs)
 }
 
+/// `svbrdf bench --align-capture OUT --truth CAP`: the alignment's accuracy.
+fn alignment_accuracy(out: &Path, cap: &Path) -> serde_json::Value {
+    let o = svbrdf(&[
+        "bench",
+        "--no-brdf",
+        "--align-capture",
+        out.to_str().unwrap(),
+        "--truth",
+        cap.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let v: serde_json::Value =
+        serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
+    eprintln!("{v}");
+    v
+}
+
 #[test]
 fn tiny_alignment_matches_ground_truth() {
     let cap = tiny_capture();
@@ -54,18 +71,7 @@ fn tiny_alignment_matches_ground_truth() {
         |f| matches!(&f.mapping, FrameMapping::Homographies { subframes } if subframes.len() >= 15)
     ));
 
-    let o = svbrdf(&[
-        "bench",
-        "--no-brdf",
-        "--align-capture",
-        out.to_str().unwrap(),
-        "--truth",
-        cap.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let v: serde_json::Value =
-        serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
-    eprintln!("{v}");
+    let v = alignment_accuracy(out.as_path(), cap);
     let get = |k: &str| v[k].as_f64().unwrap();
     // Paper-preset targets are 0.25 / 0.5 px and 2 mm; tiny frames are 8x smaller.
     assert!(get("align_error_px_median") < 0.5, "{v}");
@@ -272,18 +278,7 @@ fn hard_small_tiles_align_within_the_issue_18_bounds() {
             .all(|c| c["shift_mm"].as_f64().is_some_and(|m| m < 1.0)),
         "{checks:?}"
     );
-    let o = svbrdf(&[
-        "bench",
-        "--no-brdf",
-        "--align-capture",
-        out.to_str().unwrap(),
-        "--truth",
-        cap.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let v: serde_json::Value =
-        serde_json::from_str(String::from_utf8_lossy(&o.stdout).trim()).unwrap();
-    eprintln!("{v}");
+    let v = alignment_accuracy(out.as_path(), &cap);
     let get = |k: &str| v[k].as_f64().unwrap();
     // Issue 18's bounds: median 0.25 px, every frame's p95 under 1 px, camera 2 mm
     // (measured: 0.17, 0.81, 0.61).

@@ -7,7 +7,7 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
 use crate::hostile::copy_tree;
-use crate::util::{run_tiny, stderr, svbrdf, temp_dir, tiny_capture, tiny_run};
+use crate::util::{run_tiny, stderr, svbrdf, temp_dir, tiny_capture, tiny_run, Server};
 
 /// A number followed by a unit of time or memory, replaced by `#`: the run's own
 /// measurements in report.html.
@@ -251,15 +251,6 @@ fn an_interrupted_run_is_refused_until_resumed_and_resumes_to_the_same_bytes() {
             !names.iter().any(|n| n.starts_with('.')),
             "leftovers after {at}: {names:?}"
         );
-    }
-}
-
-struct Server(std::process::Child);
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
     }
 }
 

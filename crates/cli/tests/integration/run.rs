@@ -2,7 +2,9 @@
 //! tools users open them with (Khronos glTF validator, Mitsuba 3).
 use std::process::Command;
 
-use crate::util::{repo_root, skip_without, stderr, svbrdf, temp_dir, tiny_capture, tiny_run};
+use crate::util::{
+    repo_root, skip_without, stderr, svbrdf, temp_dir, tiny_capture, tiny_run, Server,
+};
 
 fn stdout(o: &std::process::Output) -> String {
     String::from_utf8_lossy(&o.stdout).into_owned()
@@ -213,16 +215,6 @@ fn report_loads_in_chromium_with_every_image() {
             dom.contains(&format!("<section id=\"{section}\"")),
             "{section}"
         );
-    }
-}
-
-/// Kills the server when the test ends, pass or fail.
-struct Server(std::process::Child);
-
-impl Drop for Server {
-    fn drop(&mut self) {
-        let _ = self.0.kill();
-        let _ = self.0.wait();
     }
 }
 

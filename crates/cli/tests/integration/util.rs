@@ -186,3 +186,13 @@ pub fn images_loaded(dom: &str) -> bool {
         _ => false,
     }
 }
+
+/// Kills the server when the test ends, pass or fail.
+pub struct Server(pub std::process::Child);
+
+impl Drop for Server {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
