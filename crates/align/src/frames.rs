@@ -63,6 +63,20 @@ fn unscale(mut f: Features, s: f64) -> Features {
     f
 }
 
+/// The blur metric (eq. 1) of a frame at the coarse scale, and that coarse image.
+fn coarse_blur(luma: &ImageU8, cfg: &AlignConfig) -> Result<(ImageU8, f64), AlignError> {
+    let long = luma.width.max(luma.height) as f64;
+    let cs = (f64::from(cfg.coarse_long_side) / long).min(1.0);
+    let coarse_img = downscaled(luma, cs)?;
+    let grey: Vec<f32> = coarse_img
+        .data
+        .iter()
+        .map(|&v| f32::from(v) / 255.0)
+        .collect();
+    let blur = blur_metric(&grey, coarse_img.width, coarse_img.height);
+    Ok((coarse_img, blur))
+}
+
 fn process(
     frame: LumaFrame,
     index: u64,
@@ -78,13 +92,7 @@ fn process(
     // Everything but the thumbnail works on luminance (converted once, at full
     // resolution, while decoding), with area-averaged grey images: a third of the data
     // of RGB.
-    let coarse_img = downscaled(&luma, cs)?;
-    let grey: Vec<f32> = coarse_img
-        .data
-        .iter()
-        .map(|&v| f32::from(v) / 255.0)
-        .collect();
-    let blur = blur_metric(&grey, coarse_img.width, coarse_img.height);
+    let (coarse_img, blur) = coarse_blur(&luma, cfg)?;
     // Markers are found in the coarse image (a quarter of the pixels of the 1920 px
     // image) and their corners located at up to 1920 px, large enough for sub-pixel
     // corners.
@@ -188,6 +196,11 @@ pub fn decode_frames(
     }
     let info = reader.info();
     let step = u64::from(cfg.camera.frame_step);
+    // Windows of 2 * radius + 1 frames centred on every `step`-th frame (the first
+    // window starts at frame 0).
+    let radius = u64::from(cfg.sharpest_within).min((step - 1) / 2);
+    let offset = move |idx: u64| (idx + radius) % step;
+    let window_of = move |idx: u64| (idx + radius) / step;
     progress.stage("decode + features", info.frame_count.div_ceil(step));
     let batch_size = 2 * rayon::current_num_threads().max(1);
     let (tx, rx) =
@@ -196,7 +209,9 @@ pub fn decode_frames(
     std::thread::scope(|scope| -> Result<(), AlignError> {
         scope.spawn(move || loop {
             let idx = reader.next_index();
-            let frame = if idx % step == 0 {
+            // The frames within `radius` of every `step`-th frame are decoded, and the
+            // sharpest of each such window is used.
+            let frame = if offset(idx) <= 2 * radius {
                 reader.read_luma(THUMB_LONG).map_err(AlignError::from)
             } else {
                 match reader.skip() {
@@ -226,12 +241,20 @@ pub fn decode_frames(
         });
         // Owned here so that an early error drops it and unblocks the decoder thread.
         let rx = rx;
-        let mut batch: Vec<(u64, LumaFrame)> = Vec::with_capacity(batch_size);
-        let flush = |batch: &mut Vec<(u64, LumaFrame)>,
+        // Windows of `step` consecutive frames; each gives one frame, its sharpest.
+        let mut batch: Vec<Vec<(u64, LumaFrame)>> = Vec::with_capacity(batch_size);
+        let flush = |batch: &mut Vec<Vec<(u64, LumaFrame)>>,
                      out: &mut Vec<FrameData>|
          -> Result<(), AlignError> {
             let n = batch.len() as u64;
-            let processed: Vec<Result<FrameData, AlignError>> = std::mem::take(batch)
+            let chosen: Vec<(u64, LumaFrame)> = std::mem::take(batch)
+                .into_par_iter()
+                .map(|window| pick_sharpest(window, cfg))
+                .collect::<Result<Vec<_>, AlignError>>()?
+                .into_iter()
+                .flatten()
+                .collect();
+            let processed: Vec<Result<FrameData, AlignError>> = chosen
                 .into_par_iter()
                 .map(|(i, f)| process(f, i, info.fps, cfg, dict))
                 .collect();
@@ -241,11 +264,22 @@ pub fn decode_frames(
             progress.advance(n);
             Ok(())
         };
+        let mut window: Vec<(u64, LumaFrame)> = Vec::new();
         for item in rx.iter() {
-            batch.push(item?);
-            if batch.len() == batch_size {
-                flush(&mut batch, &mut out)?;
+            let (idx, f) = item?;
+            if window
+                .first()
+                .is_some_and(|(w, _)| window_of(*w) != window_of(idx))
+            {
+                batch.push(std::mem::take(&mut window));
+                if batch.len() == batch_size {
+                    flush(&mut batch, &mut out)?;
+                }
             }
+            window.push((idx, f));
+        }
+        if !window.is_empty() {
+            batch.push(window);
         }
         if !batch.is_empty() {
             flush(&mut batch, &mut out)?;
@@ -260,6 +294,26 @@ pub fn decode_frames(
         )));
     }
     Ok(out)
+}
+
+/// The sharpest frame of a window (highest eq. 1), or `None` for an empty window.
+/// Motion blur comes from a jerk of the hand that lasts a frame or two; the frames of
+/// one window show nearly the same content, so eq. 1 compares them fairly.
+fn pick_sharpest(
+    window: Vec<(u64, LumaFrame)>,
+    cfg: &AlignConfig,
+) -> Result<Option<(u64, LumaFrame)>, AlignError> {
+    if window.len() <= 1 {
+        return Ok(window.into_iter().next());
+    }
+    let mut best: Option<(f64, (u64, LumaFrame))> = None;
+    for (i, f) in window {
+        let (_, b) = coarse_blur(&f.luma, cfg)?;
+        if best.as_ref().is_none_or(|(bb, _)| b > *bb) {
+            best = Some((b, (i, f)));
+        }
+    }
+    Ok(best.map(|(_, f)| f))
 }
 
 /// Read every JPEG/PNG in `dir` (sorted by name; OpenCV applies EXIF orientation) and
