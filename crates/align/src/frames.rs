@@ -10,6 +10,7 @@ use svbrdf_core::geometry::Vec2;
 use svbrdf_core::image::ImageU8;
 use svbrdf_cv::aruco::{detect_markers, Dictionary};
 use svbrdf_cv::features::{downscaled, sift, Features};
+use svbrdf_cv::probe::VideoProbe;
 use svbrdf_cv::video::{luma_frame_of, LumaFrame, VideoReader};
 
 /// Fewest frames a flash video may hold.
@@ -77,8 +78,11 @@ fn coarse_blur(luma: &ImageU8, cfg: &AlignConfig) -> Result<(ImageU8, f64), Alig
     Ok((coarse_img, blur))
 }
 
+/// The per-frame work; `coarse` is the frame's coarse image and blur metric when
+/// already computed (by [`pick_sharpest`]).
 fn process(
     frame: LumaFrame,
+    coarse: Option<(ImageU8, f64)>,
     index: u64,
     fps: f64,
     cfg: &AlignConfig,
@@ -92,7 +96,10 @@ fn process(
     // Everything but the thumbnail works on luminance (converted once, at full
     // resolution, while decoding), with area-averaged grey images: a third of the data
     // of RGB.
-    let (coarse_img, blur) = coarse_blur(&luma, cfg)?;
+    let (coarse_img, blur) = match coarse {
+        Some(c) => c,
+        None => coarse_blur(&luma, cfg)?,
+    };
     // Markers are found in the coarse image (a quarter of the pixels of the 1920 px
     // image) and their corners located at up to 1920 px, large enough for sub-pixel
     // corners.
@@ -178,12 +185,13 @@ fn process(
 
 /// Decode every `frame_step`-th frame on one thread while the others process the
 /// previous batch in parallel (decoding 4K H.264 is a large share of the work).
+/// Returns the frames and the stream's description.
 pub fn decode_frames(
     video: &Path,
     cfg: &AlignConfig,
     dict: Dictionary,
     progress: &dyn Progress,
-) -> Result<Vec<FrameData>, AlignError> {
+) -> Result<(Vec<FrameData>, VideoProbe), AlignError> {
     let mut reader = VideoReader::open(video)?;
     if let Some(n) = reader.probe().expected_frames() {
         if n < MIN_VIDEO_FRAMES {
@@ -195,6 +203,7 @@ pub fn decode_frames(
         }
     }
     let info = reader.info();
+    let probe = reader.probe().clone();
     let step = u64::from(cfg.camera.frame_step);
     // Windows of 2 * radius + 1 frames centred on every `step`-th frame (the first
     // window starts at frame 0).
@@ -247,7 +256,7 @@ pub fn decode_frames(
                      out: &mut Vec<FrameData>|
          -> Result<(), AlignError> {
             let n = batch.len() as u64;
-            let chosen: Vec<(u64, LumaFrame)> = std::mem::take(batch)
+            let chosen: Vec<Chosen> = std::mem::take(batch)
                 .into_par_iter()
                 .map(|window| pick_sharpest(window, cfg))
                 .collect::<Result<Vec<_>, AlignError>>()?
@@ -256,7 +265,7 @@ pub fn decode_frames(
                 .collect();
             let processed: Vec<Result<FrameData, AlignError>> = chosen
                 .into_par_iter()
-                .map(|(i, f)| process(f, i, info.fps, cfg, dict))
+                .map(|(i, f, coarse)| process(f, Some(coarse), i, info.fps, cfg, dict))
                 .collect();
             for p in processed {
                 out.push(p?);
@@ -293,8 +302,11 @@ pub fn decode_frames(
             video.display()
         )));
     }
-    Ok(out)
+    Ok((out, probe))
 }
+
+/// A frame chosen from its window, with its coarse image and blur metric.
+type Chosen = (u64, LumaFrame, (ImageU8, f64));
 
 /// The sharpest frame of a window (highest eq. 1), or `None` for an empty window.
 /// Motion blur comes from a jerk of the hand that lasts a frame or two; the frames of
@@ -302,18 +314,15 @@ pub fn decode_frames(
 fn pick_sharpest(
     window: Vec<(u64, LumaFrame)>,
     cfg: &AlignConfig,
-) -> Result<Option<(u64, LumaFrame)>, AlignError> {
-    if window.len() <= 1 {
-        return Ok(window.into_iter().next());
-    }
-    let mut best: Option<(f64, (u64, LumaFrame))> = None;
+) -> Result<Option<Chosen>, AlignError> {
+    let mut best: Option<Chosen> = None;
     for (i, f) in window {
-        let (_, b) = coarse_blur(&f.luma, cfg)?;
-        if best.as_ref().is_none_or(|(bb, _)| b > *bb) {
-            best = Some((b, (i, f)));
+        let coarse = coarse_blur(&f.luma, cfg)?;
+        if best.as_ref().is_none_or(|b| coarse.1 > b.2 .1) {
+            best = Some((i, f, coarse));
         }
     }
-    Ok(best.map(|(_, f)| f))
+    Ok(best)
 }
 
 /// Read every JPEG/PNG in `dir` (sorted by name; OpenCV applies EXIF orientation) and
@@ -355,7 +364,7 @@ pub fn read_photos(
             let img = svbrdf_cv::read_image(&dir.join(name))?;
             let frame = luma_frame_of(&img, THUMB_LONG)?;
             drop(img);
-            let mut f = process(frame, k as u64, 1.0, cfg, dict)?;
+            let mut f = process(frame, None, k as u64, 1.0, cfg, dict)?;
             f.file = Some(name.clone());
             progress.advance(1);
             Ok(f)

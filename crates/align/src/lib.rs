@@ -289,9 +289,12 @@ pub fn align(
     timer.lap("reference");
 
     // Frames: decode, blur metric, markers, features.
-    let (decoded, ordered) = match (&inputs.video, &inputs.photos) {
-        (Some(v), None) => (frames::decode_frames(v, cfg, dict, progress)?, true),
-        (None, Some(d)) => (frames::read_photos(d, cfg, dict, progress)?, false),
+    let (decoded, ordered, probe) = match (&inputs.video, &inputs.photos) {
+        (Some(v), None) => {
+            let (frames, probe) = frames::decode_frames(v, cfg, dict, progress)?;
+            (frames, true, Some(probe))
+        }
+        (None, Some(d)) => (frames::read_photos(d, cfg, dict, progress)?, false, None),
         _ => {
             return Err(AlignError::invalid(
                 "frame input",
@@ -353,8 +356,8 @@ pub fn align(
     let sweep_cm = check_baseline(&result, &inputs.reference)?;
     let mut warnings = Vec::new();
     let mut result = result;
+    let region = cfg.region.unwrap_or_else(|| reference.marker_region());
     let checks = if cfg.self_check.enabled {
-        let region = cfg.region.unwrap_or_else(|| reference.marker_region());
         let checks = self_check(&result, &ref_img, &reference, region)?;
         timer.lap("self-check");
         apply_self_check(&mut result, &checks, &cfg.self_check, &mut warnings)?;
@@ -362,7 +365,6 @@ pub fn align(
     } else {
         Vec::new()
     };
-    let region = cfg.region.unwrap_or_else(|| reference.marker_region());
     let (covered, missed) = coverage(&result, region)?;
     if covered < MIN_COVERAGE {
         return Err(AlignError::Video(format!(
@@ -377,8 +379,7 @@ pub fn align(
             100.0 * covered
         ));
     }
-    if let Some(v) = &inputs.video {
-        let probe = svbrdf_cv::probe::probe_video(v)?;
+    if let Some(probe) = &probe {
         if probe.bit_depth > 8 {
             warnings.push(format!(
                 "the video is {}-bit ({}); it is decoded to 8 bits per channel, so highlights and shadows keep less precision than recorded",
@@ -515,11 +516,9 @@ fn coverage(
                 .count() as u32
         })
         .collect();
-    let thin: Vec<usize> = (0..views.len())
-        .filter(|&i| views[i] < COVERAGE_VIEWS)
-        .collect();
-    let share = 1.0 - thin.len() as f64 / views.len().max(1) as f64;
-    if thin.is_empty() {
+    let thin = views.iter().filter(|v| **v < COVERAGE_VIEWS).count();
+    let share = 1.0 - thin as f64 / views.len().max(1) as f64;
+    if thin == 0 {
         return Ok((share, String::new()));
     }
     // Name the ninths of the region where most cells are thin.
@@ -580,11 +579,9 @@ fn apply_self_check(
     if bad.is_empty() {
         return Ok(());
     }
-    let shifts: Vec<f64> = bad.iter().filter_map(|c| c.shift_mm).collect();
-    let worst = shifts.iter().copied().fold(0.0, f64::max);
-    let mut sorted = shifts.clone();
+    let mut sorted: Vec<f64> = bad.iter().filter_map(|c| c.shift_mm).collect();
     sorted.sort_by(f64::total_cmp);
-    let median = sorted[sorted.len() / 2];
+    let (median, worst) = (sorted[sorted.len() / 2], sorted[sorted.len() - 1]);
     let frames: Vec<u64> = bad.iter().map(|c| c.frame).collect();
     let what = format!(
         "frames {} ({} of {} checked) lie {:.1}-{:.1} mm (median {:.1} mm) from where the reference photo shows the same texture",
@@ -686,7 +683,7 @@ fn second_stream(
     };
     let mut c2 = cfg.clone();
     c2.camera = cfg.second_camera.clone();
-    let decoded = frames::decode_frames(video, &c2, dict, progress)?;
+    let (decoded, _) = frames::decode_frames(video, &c2, dict, progress)?;
     let fps = svbrdf_cv::video::VideoReader::open(video)?.info().fps;
     let (mut before_onset, mut after_end) = (0, 0);
     let mut kept = Vec::with_capacity(decoded.len());

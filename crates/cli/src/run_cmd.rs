@@ -389,8 +389,9 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         "stages": {},
     });
     let old_stage = |name: &str| previous.as_ref().map(|p| p["stages"][name].clone());
-    // Which stages can be reused, decided before anything changes on disk.
-    let mut plan = Vec::new();
+    // Each stage's fingerprint (chained over the stages before it) and whether its
+    // earlier result can be reused, decided before anything changes on disk.
+    let mut plan: Vec<(String, bool)> = Vec::new();
     let mut chain = fingerprint(&json!([record["svbrdf"], record["inputs"]]));
     for (name, dir) in [
         ("align", &align_args.out),
@@ -398,23 +399,19 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         ("export", &export_args.out),
     ] {
         let fp = fingerprint(&json!([chain, record["settings"][name]]));
-        let skipped = name == "align" && a.capture.is_some();
-        let reusable = skipped
-            || (!a.force
-                && dir.exists()
-                && old_stage(name).is_some_and(|s| s["fingerprint"] == json!(fp)));
-        plan.push((name, fp.clone(), reusable));
+        let reusable = !a.force
+            && dir.exists()
+            && old_stage(name).is_some_and(|s| s["fingerprint"] == json!(fp));
+        // Before the first stage changes anything, the record keeps only the stages
+        // that stay valid (and says below that the folder is unfinished).
+        if reusable {
+            record["stages"][name] = old_stage(name).unwrap_or(Value::Null);
+        }
+        plan.push((fp.clone(), reusable));
         chain = fp;
     }
-    // Before the first stage changes anything, the record says the folder is
-    // unfinished and keeps only the stages that stay valid: an interruption from here
-    // on leaves a folder that `view`, `export` and the report refuse until `run`
-    // resumes it. The old report (of the old maps) goes at once.
-    for (name, _, reusable) in &plan {
-        if *reusable && !(*name == "align" && a.capture.is_some()) {
-            record["stages"][*name] = old_stage(name).unwrap_or(Value::Null);
-        }
-    }
+    // An interruption from here on leaves a folder that `view`, `export` and the report
+    // refuse until `run` resumes it. The old report (of the old maps) goes at once.
     record["complete"] = json!(false);
     for d in [&align_args.out, &fit_args.out, &export_args.out] {
         svbrdf_core::fsutil::remove_stale_siblings(d);
@@ -425,7 +422,6 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         std::fs::remove_file(&old_report)
             .with_context(|| format!("removing the old {}", old_report.display()))?;
     }
-    let mut prev_fp = fingerprint(&json!([record["svbrdf"], record["inputs"]]));
     type Stage<'a> = (&'a str, &'a Path, Box<dyn Fn() -> Result<()> + 'a>);
     let stages: Vec<Stage> = vec![
         (
@@ -459,7 +455,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
             Box::new(|| run_export(&export_args).map(|_| ())),
         ),
     ];
-    for (name, dir, stage) in &stages {
+    for ((name, dir, stage), (fp, reusable)) in stages.iter().zip(&plan) {
         if *name == "align" && a.capture.is_some() {
             say!(
                 "== align: skipped (registered capture given: {})",
@@ -467,16 +463,11 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
             );
             continue;
         }
-        let fp = fingerprint(&json!([prev_fp, record["settings"][*name]]));
-        let reusable = !a.force
-            && dir.exists()
-            && old_stage(name).is_some_and(|s| s["fingerprint"] == json!(fp));
-        if reusable {
+        if *reusable {
             say!(
                 "== {name}: reusing {} (inputs and settings unchanged)",
                 dir.display()
             );
-            record["stages"][*name] = old_stage(name).unwrap_or(Value::Null);
         } else {
             say!("== {name}");
             crate::bench::reset_peak_memory();
@@ -491,7 +482,6 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
             // Record each finished stage at once, so an interrupted run resumes here.
             write_record(&record_path, &record)?;
         }
-        prev_fp = fp;
         say!();
     }
     // Every stage's doubts in one list.

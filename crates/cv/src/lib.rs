@@ -213,8 +213,9 @@ pub const MIN_IMAGE_SIDE: u32 = 64;
 pub const MAX_IMAGE_SIDE: u32 = 20000;
 
 /// Check an image file before OpenCV decodes it: a readable header with a plausible
-/// size, and (for JPEG and PNG) data that decode to the end. OpenCV would print
-/// libjpeg's warnings and return a partly grey image for a truncated file.
+/// size, JPEG segments and scans that reach the end-of-image marker, PNG data that
+/// decode to the end. OpenCV would print libjpeg's warnings and return a partly grey
+/// image for a truncated file.
 pub fn check_image(path: &Path) -> Result<(), CvError> {
     let bad = |m: String| CvError::File {
         path: path.into(),
@@ -255,7 +256,9 @@ pub fn check_image(path: &Path) -> Result<(), CvError> {
             ));
         }
     }
-    if matches!(format, image::ImageFormat::Jpeg | image::ImageFormat::Png) {
+    // A JPEG's structure is checked above without decoding it twice; a PNG is checked
+    // by decoding it (its chunks carry no such end marker before the data ends).
+    if format == image::ImageFormat::Png {
         let mut limits = image::Limits::default();
         limits.max_alloc = Some(2 << 30);
         let mut r = image::ImageReader::open(path)

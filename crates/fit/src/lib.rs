@@ -705,7 +705,8 @@ pub fn fit(
             cfg.min_observations
         ));
     }
-    let all_obs = obs.len() as u64 + obs.clipped;
+    // Clipped observations are among `obs` when kept as censored values, else dropped.
+    let all_obs = obs.len() as u64 + if cfg.censor_clipped { 0 } else { obs.clipped };
     if all_obs > 0 && obs.clipped * 4 > all_obs {
         warnings.push(format!(
             "{:.0}% of the observations have a clipped channel: the video is overexposed, so highlights are measured only in part (lower the exposure)",
