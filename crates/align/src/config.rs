@@ -226,6 +226,21 @@ impl AlignConfig {
                 "a finite weight >= 0",
             ));
         }
+        let sc = &self.self_check;
+        if !(sc.max_shift_mm > 0.0 && sc.max_shift_mm <= 100.0) {
+            return Err(AlignError::invalid(
+                "self-check offset limit",
+                sc.max_shift_mm,
+                "mm, in (0, 100]",
+            ));
+        }
+        if !(0.0..=1.0).contains(&sc.max_inconsistent_share) {
+            return Err(AlignError::invalid(
+                "self-check inconsistent share",
+                sc.max_inconsistent_share,
+                "a fraction in [0, 1]",
+            ));
+        }
         if !(0.0..0.5).contains(&self.highlight_radius) {
             return Err(AlignError::invalid(
                 "highlight radius",

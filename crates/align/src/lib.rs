@@ -25,6 +25,7 @@ mod matching;
 pub mod output;
 pub mod patch;
 pub mod pose;
+pub mod recheck;
 pub mod reference;
 pub mod selfcheck;
 pub mod solve;
@@ -233,31 +234,13 @@ impl Timer {
     }
 }
 
-/// Run the geometry stage and write a registered capture into `out`.
-pub fn align(
-    inputs: &AlignInputs,
+/// Read the reference photo, find its markers and set up the world frame on them.
+pub(crate) fn reference_photo(
+    path: &Path,
     cfg: &AlignConfig,
-    out: &Path,
-    overwrite: bool,
-    progress: &dyn Progress,
-) -> Result<AlignSummary, AlignError> {
-    cfg.validate()?;
-    // Refuse an output that would delete an input or needs --overwrite now, not after
-    // minutes of work.
-    if out.exists() && !overwrite {
-        return Err(svbrdf_core::CoreError::invalid(
-            "output folder",
-            out.display(),
-            "a path that does not exist yet (or pass --overwrite)",
-        )
-        .into());
-    }
-    svbrdf_core::fsutil::check_output_spares_inputs(out, &inputs.paths())?;
-    let dict = svbrdf_cv::aruco::Dictionary::from_name(&cfg.camera.marker_dictionary)?;
-    let mut timer = Timer(Vec::new(), Instant::now());
-
-    // Reference photo and world frame.
-    let ref_img = svbrdf_cv::read_image(&inputs.reference)?;
+    dict: svbrdf_cv::aruco::Dictionary,
+) -> Result<(svbrdf_core::image::ImageU8, reference::ReferenceFrame), AlignError> {
+    let ref_img = svbrdf_cv::read_image(path)?;
     let ref_k = svbrdf_core::geometry::Intrinsics::from_fov(
         ref_img.width as u32,
         ref_img.height as u32,
@@ -282,10 +265,38 @@ pub fn align(
         .map_err(|e| {
             AlignError::Markers(format!(
                 "{}: {e} (dictionary {})",
-                inputs.reference.display(),
+                path.display(),
                 dict.name()
             ))
         })?;
+    Ok((ref_img, reference))
+}
+
+/// Run the geometry stage and write a registered capture into `out`.
+pub fn align(
+    inputs: &AlignInputs,
+    cfg: &AlignConfig,
+    out: &Path,
+    overwrite: bool,
+    progress: &dyn Progress,
+) -> Result<AlignSummary, AlignError> {
+    cfg.validate()?;
+    // Refuse an output that would delete an input or needs --overwrite now, not after
+    // minutes of work.
+    if out.exists() && !overwrite {
+        return Err(svbrdf_core::CoreError::invalid(
+            "output folder",
+            out.display(),
+            "a path that does not exist yet (or pass --overwrite)",
+        )
+        .into());
+    }
+    svbrdf_core::fsutil::check_output_spares_inputs(out, &inputs.paths())?;
+    let dict = svbrdf_cv::aruco::Dictionary::from_name(&cfg.camera.marker_dictionary)?;
+    let mut timer = Timer(Vec::new(), Instant::now());
+
+    // Reference photo and world frame.
+    let (ref_img, reference) = reference_photo(&inputs.reference, cfg, dict)?;
     timer.lap("reference");
 
     // Frames: decode, blur metric, markers, features.

@@ -50,6 +50,9 @@ enum Command {
     /// Align a flash video to the plane defined by the markers in a reference photo and
     /// write a registered capture (paper section 3.1).
     Align(AlignArgs),
+    /// Compare every frame of a registered capture with the reference photo (the
+    /// self-check `align` runs before it writes) and name the frames that disagree.
+    Check(CheckArgs),
     /// Fit svBRDF maps (diffuse, specular, roughness, normal) to a registered capture
     /// (paper section 3.2) and check them by re-rendering every frame.
     Fit(fit_cmd::FitArgs),
@@ -120,6 +123,23 @@ struct SynthArgs {
     /// Replace the output folder if it exists.
     #[arg(long)]
     overwrite: bool,
+}
+
+#[derive(Args)]
+#[command(allow_negative_numbers = true)]
+struct CheckArgs {
+    /// The registered capture folder (holding capture.json).
+    #[arg(long)]
+    capture: PathBuf,
+    /// The reference photo whose markers define the plane.
+    #[arg(long)]
+    reference: PathBuf,
+    /// The phone's camera description (JSON); default: the kit's phone.
+    #[arg(long)]
+    camera: Option<PathBuf>,
+    /// Offset from the reference photo beyond which a frame is named, mm (default 1).
+    #[arg(long)]
+    limit_mm: Option<f64>,
 }
 
 #[derive(Args, Clone)]
@@ -303,6 +323,59 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
     c.trim_second = a.second.trim_second;
     c.validate()?;
     Ok(c)
+}
+
+/// `svbrdf check`: one JSON line with every frame's check on stdout, a summary line,
+/// and an error naming the frames that disagree.
+fn run_check(a: &CheckArgs) -> Result<()> {
+    let mut cfg = svbrdf_align::AlignConfig::default();
+    if let Some(p) = &a.camera {
+        cfg.camera = svbrdf_align::CameraDescription::load(p)?;
+    }
+    if let Some(v) = a.limit_mm {
+        cfg.self_check.max_shift_mm = v;
+    }
+    svbrdf_cv::set_single_threaded()?;
+    let progress = progress::Bars::new();
+    let c = svbrdf_align::recheck::check_capture(&a.capture, &a.reference, &cfg, &progress)?;
+    let bad = c.inconsistent();
+    println!(
+        "{}",
+        serde_json::json!({
+            "check": "self_check",
+            "capture": a.capture.display().to_string(),
+            "limit_mm": c.limit_mm,
+            "inconsistent": bad,
+            "unverified": c.unverified(),
+            "frames": c.frames,
+        })
+    );
+    let checked: Vec<f64> = c.frames.iter().filter_map(|f| f.shift_mm).collect();
+    say!(
+        "self-check against the reference photo: {} of {} frames verified, largest median offset {:.2} mm",
+        checked.len(),
+        c.frames.len(),
+        checked.iter().copied().fold(0.0, f64::max)
+    );
+    if !bad.is_empty() {
+        let mut off: Vec<f64> = c
+            .frames
+            .iter()
+            .filter(|f| f.inconsistent(c.limit_mm))
+            .filter_map(|f| f.shift_mm)
+            .collect();
+        off.sort_by(f64::total_cmp);
+        anyhow::bail!(
+            "frames {} ({} of {} checked) lie {:.1}-{:.1} mm from where the reference photo shows the same texture (expected at most {} mm): their mapping is wrong; align again, or drop them from capture.json",
+            svbrdf_align::selfcheck::ranges(&bad),
+            bad.len(),
+            checked.len(),
+            off[0],
+            off[off.len() - 1],
+            c.limit_mm
+        );
+    }
+    Ok(())
 }
 
 fn run_align(a: &AlignArgs) -> Result<()> {
@@ -559,6 +632,7 @@ fn main() -> ExitCode {
             .map(|s| print_summary(&s)),
         Command::Demo(a) => run_demo(&a),
         Command::Align(a) => run_align(&a),
+        Command::Check(a) => run_check(&a),
         Command::Fit(a) => fit_cmd::run_fit(&a).map(|_| ()),
         Command::Run(a) => run_cmd::run_pipeline(&a).and_then(|o| run_cmd::print_run_summary(&o)),
         Command::Export(a) => run_cmd::run_export(&a).map(|_| ()),

@@ -18,12 +18,13 @@ pub enum CoreError {
     #[error("degenerate geometry: {0}")]
     Degenerate(String),
     /// A file could not be read or written.
-    #[error("{path}: {source}")]
+    #[error("{path}: {cause}")]
     Io {
         /// The file.
         path: PathBuf,
-        /// The cause.
-        source: std::io::Error,
+        /// The cause (in the message, so not also a `source()`: error chains printed
+        /// with their causes would repeat it).
+        cause: std::io::Error,
     },
     /// A file was read but its content is not what we expected.
     #[error("{path}: {message}")]
@@ -53,7 +54,7 @@ impl CoreError {
     pub fn io(path: impl Into<PathBuf>, source: std::io::Error) -> Self {
         Self::Io {
             path: path.into(),
-            source,
+            cause: source,
         }
     }
 

@@ -285,4 +285,66 @@ fn hard_small_tiles_align_within_the_issue_18_bounds() {
     assert!(get("align_error_px_median") < 0.25, "{v}");
     assert!(get("worst_frame_px_p95") < 1.0, "{v}");
     assert!(get("camera_error_mm_median") < 2.0, "{v}");
+
+    // Issue 18: a deliberately misregistered stretch is named, and only it. `svbrdf
+    // check` runs the self-check on the written capture: clean, it names no frame; with
+    // five consecutive frames' maps moved 3 mm on the plane (what a wrong match set
+    // does to a stretch of the sweep), it names exactly those and fails.
+    let check = |capture: &Path| {
+        svbrdf(&[
+            "check",
+            "--capture",
+            capture.to_str().unwrap(),
+            "--reference",
+            cap.join("reference.jpg").to_str().unwrap(),
+            "--camera",
+            cap.join("camera.json").to_str().unwrap(),
+        ])
+    };
+    let o = check(&out);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // The record is stdout's first line; a summary line follows.
+    let record = |o: &std::process::Output| -> serde_json::Value {
+        let text = String::from_utf8_lossy(&o.stdout).to_string();
+        serde_json::from_str(text.lines().next().unwrap_or("")).unwrap()
+    };
+    let clean = record(&o);
+    assert_eq!(clean["inconsistent"], serde_json::json!([]), "{clean}");
+    let mut capture: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("capture.json")).unwrap()).unwrap();
+    let frames = capture["frames"].as_array_mut().unwrap();
+    assert!(frames.len() >= 15, "{}", frames.len());
+    let mut moved = Vec::new();
+    for f in &mut frames[8..13] {
+        moved.push(f["frame_index"].as_u64().unwrap());
+        for s in f["mapping"]["subframes"].as_array_mut().unwrap() {
+            // plane_from_pixel, then 0.3 cm along x: row 0 += 0.3 * row 2.
+            let h = s["plane_from_pixel"].as_array_mut().unwrap();
+            let row2: Vec<f64> = h[2]
+                .as_array()
+                .unwrap()
+                .iter()
+                .map(|v| v.as_f64().unwrap())
+                .collect();
+            for (v, r) in h[0].as_array_mut().unwrap().iter_mut().zip(&row2) {
+                *v = serde_json::json!(v.as_f64().unwrap() + 0.3 * r);
+            }
+        }
+    }
+    let bad = temp_dir().join("misregistered");
+    std::fs::create_dir_all(&bad).unwrap();
+    std::fs::write(bad.join("capture.json"), capture.to_string()).unwrap();
+    let o = check(&bad);
+    assert!(!o.status.success());
+    let err = stderr(&o);
+    assert_eq!(err.matches("error:").count(), 1, "{err}");
+    let rec = record(&o);
+    assert_eq!(rec["inconsistent"], serde_json::json!(moved), "{rec}");
+    for f in rec["frames"].as_array().unwrap() {
+        let frame = f["frame"].as_u64().unwrap();
+        let shift = f["shift_mm"].as_f64().unwrap_or(0.0);
+        if moved.contains(&frame) {
+            assert!((shift - 3.0).abs() < 0.5, "frame {frame}: {shift} mm");
+        }
+    }
 }

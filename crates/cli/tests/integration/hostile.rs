@@ -1125,10 +1125,67 @@ fn capture_cases(c: &mut Cases) {
 }
 
 fn import_eval_cases(c: &mut Cases) {
-    c.group = "import and eval";
+    c.group = "import, eval and check";
     let f = c.f;
     let d = c.dir();
     let mg = s(&f.mg);
+    let (reg, reference, camera) = (s(&f.registered), s(&f.reference), s(&f.camera));
+    c.cmd(
+        "check: capture folder missing",
+        &[
+            "check",
+            "--capture",
+            &s(&d.join("nope")),
+            "--reference",
+            &reference,
+            "--camera",
+            &camera,
+        ],
+        vec![],
+        reject(&["nope"]),
+    );
+    c.cmd(
+        "check: reference photo without markers",
+        &[
+            "check",
+            "--capture",
+            &reg,
+            "--reference",
+            &s(&f.mg.join("00.png")),
+            "--camera",
+            &camera,
+        ],
+        vec![f.registered.clone(), f.mg.clone()],
+        reject(&["00.png"]),
+    );
+    c.cmd(
+        "check: negative offset limit",
+        &[
+            "check",
+            "--capture",
+            &reg,
+            "--reference",
+            &reference,
+            "--limit-mm",
+            "-1",
+        ],
+        vec![f.registered.clone()],
+        reject(&["-1"]),
+    );
+    c.cmd(
+        "check: the registered capture against its own reference",
+        &[
+            "check",
+            "--capture",
+            &reg,
+            "--reference",
+            &reference,
+            "--camera",
+            &camera,
+        ],
+        vec![f.registered.clone(), f.reference.clone(), f.camera.clone()],
+        Expect::Accept,
+    );
     c.cmd(
         "import: folder missing",
         &[
