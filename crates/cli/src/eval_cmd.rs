@@ -114,6 +114,7 @@ fn one(a: &EvalArgs, holdout: Vec<u32>, out: &Path, diffuse_only: bool) -> Resul
         model: cfg.fit.model,
         grid: fitted.grid,
         params: fitted.params,
+        coverage: fitted.coverage,
     };
     svbrdf_export::report::write_report(&out, Some(&maps))?;
     say!(

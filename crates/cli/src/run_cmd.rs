@@ -33,6 +33,10 @@ pub struct ExportArgs {
     /// Leave out the preview sphere (the quad alone).
     #[arg(long)]
     pub no_sphere: bool,
+    /// Cut the parts of the material no frame saw out of the glTF (alpha mask) instead
+    /// of showing the BRDF filled in from the nearest measured cluster there.
+    #[arg(long)]
+    pub mask_unobserved: bool,
     /// Replace existing export folders.
     #[arg(long)]
     pub overwrite: bool,
@@ -103,6 +107,7 @@ pub fn load_fit(dir: &Path) -> Result<(MaterialMaps, [f64; 3])> {
         model,
         grid: m.grid,
         params: m.params,
+        coverage: m.coverage,
     };
     Ok((maps, m.manifest.summary.light_intensity))
 }
@@ -116,6 +121,7 @@ fn export_config(a: &ExportArgs) -> ExportConfig {
     ExportConfig {
         name: a.name.clone(),
         sphere: !a.no_sphere,
+        mask_unobserved: a.mask_unobserved,
         ..ExportConfig::default()
     }
 }
@@ -324,6 +330,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         out: a.out.join(EXPORT),
         name: "svbrdf_material".into(),
         no_sphere: false,
+        mask_unobserved: false,
         overwrite: true,
     };
     // Validate every setting before the first stage starts.

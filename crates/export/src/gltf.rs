@@ -158,6 +158,11 @@ pub fn sphere_placement(maps: &MaterialMaps) -> (f64, [f64; 3]) {
     (r, [0.5 * w + 0.15 * w.min(h) + r, r, 0.0])
 }
 
+/// File name of the coverage map beside the textures (not a material texture).
+pub const COVERAGE_FILE: &str = "coverage.png";
+/// What the coverage map's values mean.
+pub const COVERAGE_MEANING: &str = "coverage (linear): 1 = seen by at least 3 frames (measured), 0.5 = by 1-2 frames, 0 = by none (BRDF filled from the nearest measured cluster, not measured)";
+
 /// Write the glTF export into the folder `out` and return the `.gltf` path.
 pub fn write(
     maps: &MaterialMaps,
@@ -169,7 +174,33 @@ pub fn write(
     cfg.validate()?;
     let staging = StagingDir::new(out, overwrite, &[])?;
     let dir = staging.path();
-    let t = textures(maps);
+    let mut t = textures(maps);
+    // Pixels no frame saw: cut out by the base colour's alpha when asked to.
+    let masked = match (&maps.coverage, cfg.mask_unobserved) {
+        (Some(c), true) => {
+            let rgb = &t.base_color;
+            let mut rgba = ImageF32::new(rgb.width, rgb.height, 4);
+            for (i, &v) in c.iter().enumerate() {
+                rgba.data[4 * i..4 * i + 3].copy_from_slice(&rgb.data[3 * i..3 * i + 3]);
+                rgba.data[4 * i + 3] = if v == 0 { 0.0 } else { 1.0 };
+            }
+            t.base_color = rgba;
+            true
+        }
+        _ => false,
+    };
+    if let Some(img) = maps.coverage_image() {
+        write_png(
+            &dir.join(COVERAGE_FILE),
+            &img,
+            Encoding::Linear,
+            PngDepth::Eight,
+            &[
+                ("map", COVERAGE_MEANING.to_string()),
+                ("encoding", "linear".into()),
+            ],
+        )?;
+    }
     let texture_files: [(&str, &ImageF32, Encoding, &str); 5] = [
         ("base_color.png", &t.base_color, Encoding::Srgb, "glTF baseColor = rho_d / (1 - max F0)"),
         (
@@ -279,6 +310,20 @@ pub fn write(
         "bufferViews": buf.views,
         "accessors": buf.accessors,
     });
+    let mut doc = doc;
+    if masked {
+        doc["materials"][0]["alphaMode"] = json!("MASK");
+    }
+    if let Some(s) = maps.coverage_shares() {
+        doc["asset"]["extras"]["svbrdf"]["coverage"] = json!({
+            "file": COVERAGE_FILE,
+            "meaning": COVERAGE_MEANING,
+            "measured_share": s.measured,
+            "thin_share": s.thin,
+            "unobserved_share": s.unobserved,
+            "unobserved_masked": masked,
+        });
+    }
     svbrdf_core::fsutil::write_json(&dir.join(GLTF_FILE), &doc)?;
     let target = staging.commit()?;
     Ok(target.join(GLTF_FILE))
@@ -314,6 +359,61 @@ pub(crate) mod tests {
             model,
             grid,
             params,
+            coverage: None,
+        }
+    }
+
+    #[test]
+    fn unobserved_pixels_are_recorded_and_masked_on_request() {
+        let tmp = tempfile::tempdir().expect("tmp");
+        let mut maps = checker(ModelKind::Ward);
+        let n = maps.params.len();
+        // A quarter of the pixels unseen, a quarter seen twice, the rest seen often.
+        let coverage: Vec<u32> = (0..n as u32)
+            .map(|i| [0, 2, 5, 9][(i % 4) as usize])
+            .collect();
+        maps.coverage = Some(coverage.clone());
+        let read = |dir: &Path, cfg: &ExportConfig| -> (Value, ImageF32, ImageF32) {
+            let path = write(&maps, cfg, dir, false).expect("export");
+            let doc: Value =
+                serde_json::from_str(&std::fs::read_to_string(&path).expect("read")).expect("json");
+            let base =
+                svbrdf_core::maps::read_image_linear(&dir.join("base_color.png"), Encoding::Linear)
+                    .expect("base colour");
+            let cov =
+                svbrdf_core::maps::read_image_linear(&dir.join(COVERAGE_FILE), Encoding::Linear)
+                    .expect("coverage");
+            (doc, base, cov)
+        };
+        let (doc, base, cov) = read(&tmp.path().join("plain"), &ExportConfig::default());
+        let c = &doc["asset"]["extras"]["svbrdf"]["coverage"];
+        assert_eq!(c["unobserved_share"], json!(0.25), "{c}");
+        assert_eq!(c["thin_share"], json!(0.25), "{c}");
+        assert_eq!(c["unobserved_masked"], json!(false));
+        assert!(doc["materials"][0].get("alphaMode").is_none());
+        assert_eq!(base.channels, 3);
+        for (k, &v) in coverage.iter().enumerate() {
+            let want = match v {
+                0 => 0.0,
+                2 => 0.5,
+                _ => 1.0,
+            };
+            assert!((cov.data[k * cov.channels] - want).abs() < 0.01, "{k}");
+        }
+        let cfg = ExportConfig {
+            mask_unobserved: true,
+            ..ExportConfig::default()
+        };
+        let (doc, base, _) = read(&tmp.path().join("masked"), &cfg);
+        assert_eq!(doc["materials"][0]["alphaMode"], json!("MASK"));
+        assert_eq!(base.channels, 3);
+        // The alpha channel (read with the image crate: our reader keeps colour only).
+        let rgba = image::open(tmp.path().join("masked/base_color.png"))
+            .expect("png")
+            .to_rgba8();
+        for (k, &v) in coverage.iter().enumerate() {
+            let alpha = rgba.as_raw()[4 * k + 3];
+            assert_eq!(alpha, if v == 0 { 0 } else { 255 }, "pixel {k}");
         }
     }
 

@@ -45,9 +45,53 @@ pub struct MaterialMaps {
     pub grid: PlaneGrid,
     /// Parameters per pixel.
     pub params: Vec<BrdfParams>,
+    /// Observations per pixel (frames that saw it; 0: not seen, its BRDF was filled
+    /// from the nearest measured cluster), where known.
+    pub coverage: Option<Vec<u32>>,
+}
+
+/// Observations a map pixel needs to count as measured (as the alignment's coverage).
+pub const MEASURED_VIEWS: u32 = 3;
+
+/// Shares of the map's pixels by how well they were observed.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct CoverageShares {
+    /// Seen by at least [`MEASURED_VIEWS`] frames.
+    pub measured: f64,
+    /// Seen by 1 or 2 frames.
+    pub thin: f64,
+    /// Not seen: the BRDF there was filled from the nearest measured cluster.
+    pub unobserved: f64,
 }
 
 impl MaterialMaps {
+    /// How much of the map was measured, where the coverage is known.
+    pub fn coverage_shares(&self) -> Option<CoverageShares> {
+        let c = self.coverage.as_ref()?;
+        let n = c.len().max(1) as f64;
+        let count = |f: &dyn Fn(u32) -> bool| c.iter().filter(|&&v| f(v)).count() as f64 / n;
+        Some(CoverageShares {
+            measured: count(&|v| v >= MEASURED_VIEWS),
+            thin: count(&|v| v > 0 && v < MEASURED_VIEWS),
+            unobserved: count(&|v| v == 0),
+        })
+    }
+
+    /// The coverage as a linear grey image: 1 measured, 0.5 thin (1-2 frames), 0 not
+    /// seen (filled).
+    pub fn coverage_image(&self) -> Option<svbrdf_core::image::ImageF32> {
+        let c = self.coverage.as_ref()?;
+        let mut img = svbrdf_core::image::ImageF32::new(self.grid.width, self.grid.height, 1);
+        for (o, &v) in img.data.iter_mut().zip(c) {
+            *o = match v {
+                0 => 0.0,
+                v if v < MEASURED_VIEWS => 0.5,
+                _ => 1.0,
+            };
+        }
+        Some(img)
+    }
+
     /// Check that the parameters fill the grid and are finite.
     pub fn validate(&self) -> Result<(), ExportError> {
         if self.params.len() != self.grid.len() || self.params.is_empty() {
@@ -75,6 +119,16 @@ impl MaterialMaps {
             )
             .into());
         }
+        if let Some(c) = &self.coverage {
+            if c.len() != self.params.len() {
+                return Err(CoreError::invalid(
+                    "coverage map size",
+                    c.len(),
+                    format!("{} pixels, as the maps", self.params.len()),
+                )
+                .into());
+            }
+        }
         Ok(())
     }
 }
@@ -95,6 +149,9 @@ pub struct ExportConfig {
     pub mitsuba_width: u32,
     /// Mitsuba samples per pixel.
     pub mitsuba_spp: u32,
+    /// Cut the pixels no frame saw out of the glTF material (alpha mask) instead of
+    /// showing the BRDF filled in from the nearest measured cluster.
+    pub mask_unobserved: bool,
 }
 
 impl Default for ExportConfig {
@@ -106,6 +163,7 @@ impl Default for ExportConfig {
             sphere_rings: 48,
             mitsuba_width: 768,
             mitsuba_spp: 64,
+            mask_unobserved: false,
         }
     }
 }

@@ -134,6 +134,17 @@ pub fn write(
         PngDepth::Sixteen,
         &meta("tangent-space normal, 0.5 n + 0.5, +y up"),
     )?;
+    // What was measured: the same coverage map as the glTF export's.
+    let coverage = maps.coverage_shares();
+    if let Some(img) = maps.coverage_image() {
+        write_png(
+            &dir.join(crate::gltf::COVERAGE_FILE),
+            &img,
+            Encoding::Linear,
+            PngDepth::Eight,
+            &meta(crate::gltf::COVERAGE_MEANING),
+        )?;
+    }
 
     let region = maps.grid.region;
     let centre = [
@@ -195,6 +206,16 @@ pub fn write(
         env!("CARGO_PKG_VERSION"),
         maps.model.model().name()
     );
+    if let Some(c) = coverage {
+        let _ = writeln!(
+            xml,
+            "<!-- coverage.png: {:.1}% of the material measured (seen by at least {} frames), {:.1}% seen by fewer, {:.1}% never seen (its BRDF is copied from the nearest measured cluster, not measured) -->",
+            100.0 * c.measured,
+            crate::MEASURED_VIEWS,
+            100.0 * c.thin,
+            100.0 * c.unobserved
+        );
+    }
     let _ = writeln!(xml, r#"<scene version="3.0.0">"#);
     let _ = writeln!(
         xml,

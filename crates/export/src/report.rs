@@ -125,6 +125,54 @@ pub fn write_renders(
     Ok(out)
 }
 
+/// The diffuse albedo with the pixels no frame saw hatched in magenta (densely) and
+/// those only one or two frames saw (sparsely): what was measured and what was filled.
+/// `None` where the coverage is unknown.
+pub fn measured_picture(maps: &MaterialMaps) -> Option<ImageF32> {
+    let c = maps.coverage.as_ref()?;
+    let (w, h) = (maps.grid.width, maps.grid.height);
+    // Stripes about 1/80 of the map's long side apart, at least 4 pixels.
+    let period = (w.max(h) / 80).max(4);
+    let mut img = ImageF32::new(w, h, 3);
+    for (i, p) in maps.params.iter().enumerate() {
+        let (x, y) = (i % w, i / w);
+        let stripe = (x + y) % period < period.div_ceil(3);
+        let hatch = match c[i] {
+            0 => stripe,
+            v if v < crate::MEASURED_VIEWS => stripe && ((x + y) / period) % 3 == 0,
+            _ => false,
+        };
+        let px = if hatch {
+            [1.0, 0.0, 1.0]
+        } else if c[i] == 0 {
+            p.rho_d.map(|v| (0.35 * v) as f32)
+        } else {
+            p.rho_d.map(|v| v as f32)
+        };
+        img.data[3 * i..3 * i + 3].copy_from_slice(&px);
+    }
+    Some(img)
+}
+
+/// One sentence on what the capture measured, for people.
+pub fn coverage_sentence(maps: &MaterialMaps) -> Option<String> {
+    let s = maps.coverage_shares()?;
+    Some(if s.unobserved + s.thin < 1e-4 {
+        format!(
+            "Every part of the material was seen by at least {} frames: all of it is measured.",
+            crate::MEASURED_VIEWS
+        )
+    } else {
+        format!(
+            "{:.1}% of the material was seen by at least {} frames (measured); {:.1}% by only one or two (sparse magenta stripes: less certain); {:.1}% by none (dense magenta stripes, darkened): no frame saw these parts, so their material is a copy of the nearest measured region, not a measurement. The exports carry the same coverage map (coverage.png); `svbrdf export --mask-unobserved` cuts those parts out of the glTF.",
+            100.0 * s.measured,
+            crate::MEASURED_VIEWS,
+            100.0 * s.thin,
+            100.0 * s.unobserved
+        )
+    })
+}
+
 fn save(path: &Path, img: &ImageF32, meaning: &str) -> Result<(), ExportError> {
     write_png(
         path,
@@ -387,6 +435,29 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
             "The fitted model itself (before conversion for other renderers), rendered by svbrdf's CPU renderer; sRGB.",
         );
         page.figures(&renders, false)?;
+        page.end();
+    }
+
+    // What was measured and what was filled in.
+    if let Some((m, img)) = maps.and_then(|m| Some((m, measured_picture(m)?))) {
+        let p = dir.join("renders/measured.png");
+        save(
+            &p,
+            &img,
+            "diffuse albedo; magenta stripes: seen by no frame (dense) or by 1-2 frames (sparse)",
+        )?;
+        page.section(
+            "coverage",
+            "What was measured",
+            &coverage_sentence(m).unwrap_or_default(),
+        );
+        page.figures(
+            &[(
+                p,
+                "diffuse albedo (sRGB); magenta stripes mark parts not measured".into(),
+            )],
+            false,
+        )?;
         page.end();
     }
 
@@ -690,5 +761,31 @@ mod tests {
         assert_eq!(html.matches("data:image/png;base64,").count(), 4);
         assert!(html.contains("data-images-expected=\"4\""));
         assert_eq!(escape("<a & \"b\">"), "&lt;a &amp; &quot;b&quot;&gt;");
+    }
+
+    #[test]
+    fn unmeasured_parts_are_hatched_and_said() {
+        let tmp = tempfile::tempdir().expect("tmp");
+        let mut maps = crate::gltf::tests::checker(svbrdf_core::brdf::ModelKind::Ward);
+        let (w, n) = (maps.grid.width, maps.params.len());
+        // The left half unseen, the right half measured.
+        maps.coverage = Some((0..n).map(|i| if i % w < w / 2 { 0 } else { 7 }).collect());
+        let img = measured_picture(&maps).expect("picture");
+        let magenta = |i: usize| img.data[3 * i..3 * i + 3] == [1.0, 0.0, 1.0];
+        let left = (0..n).filter(|&i| i % w < w / 2);
+        let right = (0..n).filter(|&i| i % w >= w / 2);
+        assert!(left.filter(|&i| magenta(i)).count() > 0);
+        assert_eq!(right.filter(|&i| magenta(i)).count(), 0);
+        let said = coverage_sentence(&maps).expect("sentence");
+        assert!(said.contains("50.0% by none"), "{said}");
+        let p = write_report(tmp.path(), Some(&maps)).expect("report");
+        let html = std::fs::read_to_string(p).expect("read");
+        assert!(html.contains("What was measured") && html.contains("not a measurement"));
+        assert_eq!(html.matches("data:image/png;base64,").count(), 5);
+        // Fully measured: no hatch, and the page says so.
+        maps.coverage = Some(vec![3; n]);
+        assert!(coverage_sentence(&maps)
+            .expect("sentence")
+            .contains("all of it is measured"));
     }
 }

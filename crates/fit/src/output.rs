@@ -361,6 +361,8 @@ pub struct LoadedMaps {
     pub grid: svbrdf_core::plane::PlaneGrid,
     /// BRDF per pixel, row-major (normal angles recovered from the normal map).
     pub params: Vec<svbrdf_core::brdf::BrdfParams>,
+    /// Observations per pixel (`maps/coverage.exr`), where the folder has it.
+    pub coverage: Option<Vec<u32>>,
 }
 
 /// The parameters of pixel `i` from the four maps as `fit` writes them: diffuse and
@@ -430,9 +432,22 @@ pub fn read_maps(dir: &Path) -> Result<LoadedMaps, FitError> {
     let params = (0..grid.len())
         .map(|i| params_from_maps([&d, &s, &r, &n], i))
         .collect();
+    // Older fit folders and hand-made maps may lack the coverage map.
+    let coverage = if dir.join("maps/coverage.exr").exists() {
+        let c = read("coverage")?;
+        Some(
+            c.data
+                .chunks(c.channels.max(1))
+                .map(|p| p[0].max(0.0).round() as u32)
+                .collect(),
+        )
+    } else {
+        None
+    };
     Ok(LoadedMaps {
         manifest,
         grid,
         params,
+        coverage,
     })
 }

@@ -116,18 +116,38 @@ fn gltf_export_passes_the_khronos_validator() {
     ) {
         return;
     }
-    let gltf = tiny_run().join("export/gltf/material.gltf");
-    let o = Command::new("node")
-        .arg(root.join("scripts/validate-gltf.mjs"))
-        .arg(&gltf)
-        .output()
-        .unwrap();
-    let report: serde_json::Value = serde_json::from_slice(&o.stdout)
-        .unwrap_or_else(|e| panic!("validator output: {e}: {}", stderr(&o)));
-    let issues = &report["issues"];
-    assert_eq!(issues["numErrors"], 0, "{issues:#}");
-    assert_eq!(issues["numWarnings"], 0, "{issues:#}");
-    assert!(o.status.success());
+    let validate = |gltf: &std::path::Path| -> serde_json::Value {
+        let o = Command::new("node")
+            .arg(root.join("scripts/validate-gltf.mjs"))
+            .arg(gltf)
+            .output()
+            .unwrap();
+        let report: serde_json::Value = serde_json::from_slice(&o.stdout)
+            .unwrap_or_else(|e| panic!("validator output: {e}: {}", stderr(&o)));
+        let issues = &report["issues"];
+        assert_eq!(issues["numErrors"], 0, "{issues:#}");
+        assert_eq!(issues["numWarnings"], 0, "{issues:#}");
+        assert!(o.status.success());
+        report
+    };
+    // With the parts no frame saw cut out (alpha mask), as valid.
+    let masked = temp_dir().join("masked");
+    let o = svbrdf(&[
+        "export",
+        "--maps",
+        tiny_run().join("maps").to_str().unwrap(),
+        "--out",
+        masked.to_str().unwrap(),
+        "--mask-unobserved",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let doc: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(masked.join("gltf/material.gltf")).unwrap()).unwrap();
+    assert_eq!(doc["materials"][0]["alphaMode"], "MASK");
+    assert!(doc["asset"]["extras"]["svbrdf"]["coverage"]["measured_share"].is_f64());
+    assert!(masked.join("gltf/coverage.png").exists());
+    validate(&masked.join("gltf/material.gltf"));
+    let report = validate(&tiny_run().join("export/gltf/material.gltf"));
     let used = report["info"]["extensionsUsed"].to_string();
     assert!(used.contains("KHR_materials_specular") && used.contains("KHR_materials_anisotropy"));
     // The validator reads the PNGs' own colour chunks: colours sRGB, data linear.
