@@ -269,15 +269,16 @@ pub fn filter_connectivity(
     kept
 }
 
-/// Largest connected component of the kept pairs.
-pub(crate) fn largest_component(n: usize, pairs: &BTreeSet<(usize, usize)>) -> Vec<usize> {
+/// Connected components of the kept pairs, largest first (ties: earliest frame
+/// first), each sorted.
+pub(crate) fn components(n: usize, pairs: &BTreeSet<(usize, usize)>) -> Vec<Vec<usize>> {
     let mut adj = vec![Vec::new(); n];
     for &(i, j) in pairs {
         adj[i].push(j);
         adj[j].push(i);
     }
     let mut seen = vec![false; n];
-    let mut best = Vec::new();
+    let mut out = Vec::new();
     for s in 0..n {
         if seen[s] {
             continue;
@@ -294,12 +295,11 @@ pub(crate) fn largest_component(n: usize, pairs: &BTreeSet<(usize, usize)>) -> V
                 }
             }
         }
-        if comp.len() > best.len() {
-            best = comp;
-        }
+        comp.sort_unstable();
+        out.push(comp);
     }
-    best.sort_unstable();
-    best
+    out.sort_by_key(|c| (std::cmp::Reverse(c.len()), c[0]));
+    out
 }
 
 #[cfg(test)]
@@ -307,11 +307,14 @@ mod tests {
     use super::*;
 
     #[test]
-    fn largest_component_of_a_hand_made_graph() {
+    fn components_of_a_hand_made_graph() {
         // 0-1-2 and 3-4, 5 alone.
         let pairs: BTreeSet<(usize, usize)> = [(0, 1), (1, 2), (3, 4)].into_iter().collect();
-        assert_eq!(largest_component(6, &pairs), vec![0, 1, 2]);
-        assert_eq!(largest_component(2, &BTreeSet::new()).len(), 1);
+        assert_eq!(components(2, &BTreeSet::new()), vec![vec![0], vec![1]]);
+        assert_eq!(
+            components(6, &pairs),
+            vec![vec![0, 1, 2], vec![3, 4], vec![5]]
+        );
     }
 
     #[test]
@@ -331,6 +334,6 @@ mod tests {
         let kept = filter_connectivity(8, &counts);
         // Time-chain neighbours are always kept, so the capture stays in one piece.
         assert!(kept.contains(&(3, 4)));
-        assert_eq!(largest_component(8, &kept).len(), 8);
+        assert_eq!(components(8, &kept)[0].len(), 8);
     }
 }

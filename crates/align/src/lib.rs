@@ -128,6 +128,10 @@ pub struct AlignSummary {
     pub reference_anchored: usize,
     /// Frames with markers.
     pub frames_with_markers: usize,
+    /// Pieces of the connectivity map tied to the plane separately (1: the frames form
+    /// one connected chain; more: breaks bridged by the reference photo or markers).
+    #[serde(default)]
+    pub pieces: usize,
     /// Global solve statistics.
     pub solve_rms_cm: f64,
     /// Median residual after the solve, cm.
@@ -156,6 +160,46 @@ pub struct AlignSummary {
     /// Share of the region seen by at least [`COVERAGE_VIEWS`] kept flash frames.
     #[serde(default)]
     pub coverage: f64,
+    /// How the flash video's pixels were turned into R'G'B' (what its tags say and
+    /// which Y'CbCr matrix was applied); `None` for photos.
+    #[serde(default)]
+    pub video_decoding: Option<VideoDecoding>,
+}
+
+/// What a video's stream says about its colours and what decoding did with it.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+pub struct VideoDecoding {
+    /// Codec and pixel format (e.g. `h264`, `yuv420p`).
+    pub codec: String,
+    /// Pixel format.
+    pub pix_fmt: String,
+    /// The stream's Y'CbCr matrix tag (`bt709`, `smpte170m`; `None`: untagged).
+    pub matrix_tag: Option<String>,
+    /// Its range tag (`tv` limited, `pc` full).
+    pub range_tag: Option<String>,
+    /// Its transfer tag.
+    pub transfer_tag: Option<String>,
+    /// The Y'CbCr matrix the frames were decoded with (`bt709` where tagged so,
+    /// else `bt601`), then taken as sRGB-encoded R'G'B'.
+    pub decoded_with: String,
+}
+
+impl VideoDecoding {
+    /// From FFmpeg's description of the stream.
+    pub fn of(p: &svbrdf_cv::probe::VideoProbe) -> Self {
+        Self {
+            codec: p.codec.clone(),
+            pix_fmt: p.pix_fmt.clone(),
+            matrix_tag: p.matrix.clone(),
+            range_tag: p.range.clone(),
+            transfer_tag: p.transfer.clone(),
+            decoded_with: match p.decoding_matrix() {
+                svbrdf_cv::probe::DecodingMatrix::Bt709 => "bt709",
+                svbrdf_cv::probe::DecodingMatrix::Bt601 => "bt601",
+            }
+            .into(),
+        }
+    }
 }
 
 /// What happened to the second stream of a two-camera capture.
@@ -425,6 +469,7 @@ pub fn align(
         warnings,
         checks,
         covered,
+        probe.as_ref().map(VideoDecoding::of),
         progress,
     )
 }

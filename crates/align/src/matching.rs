@@ -72,6 +72,8 @@ pub struct Registration {
     pub reference_anchored: usize,
     /// Frames with markers.
     pub with_markers: usize,
+    /// Pieces of the connectivity map tied to the plane separately (1: one chain).
+    pub pieces: usize,
     /// Solve statistics.
     pub solve: SolveReport,
 }
@@ -167,16 +169,31 @@ pub fn register(
         .map(|(&(i, j), &c)| (frames[i].index, frames[j].index, c))
         .collect();
     verified_pairs.sort_unstable();
-    let comp = largest_component(frames.len(), &connectivity.kept);
-    drops.disconnected = frames.len() - comp.len();
+    // The paper keeps the connectivity map's largest component. Every component joins
+    // here: the others are kept where the reference photo or a marker ties one of
+    // their frames to the plane (decided after fine matching), so a break in the
+    // chain of frames (a fast jerk over a repetitive texture) does not drop the
+    // stretch after it; the self-check then verifies each frame against the reference.
+    let parts = components(frames.len(), &connectivity.kept);
+    let largest = parts.first().map_or(0, Vec::len);
     lap("coarse alignment");
-    if comp.len() < 2 {
+    if largest < 2 {
         return Err(AlignError::Connect(format!(
             "frames do not connect: {} of {} sharp frames matched none of the others (repetitive or featureless texture?)",
-            frames.len() - comp.len(),
+            frames.len() - largest,
             frames.len()
         )));
     }
+    let mut part_of = vec![0usize; frames.len()];
+    for (k, c) in parts.iter().enumerate() {
+        for &i in c {
+            part_of[i] = k;
+        }
+    }
+    let mut comp: Vec<usize> = parts.iter().flatten().copied().collect();
+    comp.sort_unstable();
+    // Component of each kept frame (flash frames first, as `frames` below).
+    let part: Vec<usize> = comp.iter().map(|&i| part_of[i]).collect();
     let in_comp: HashMap<usize, usize> = comp.iter().enumerate().map(|(k, &i)| (i, k)).collect();
     // The thresholded, filtered map decides which frames are kept (its largest
     // component, as in the paper); fine matching then uses every pair that coarse
@@ -390,7 +407,19 @@ pub fn register(
         }
     }
     let registered: Vec<usize> = (0..n).filter(|&i| init[i].is_some()).collect();
-    drops.unregistered = (0..n_flash).filter(|&i| init[i].is_none()).count();
+    // A flash frame left without a map is disconnected where no frame of its
+    // component was tied to the plane, else unregistered.
+    let tied: BTreeSet<usize> = (0..n_flash)
+        .filter(|&i| init[i].is_some())
+        .map(|i| part[i])
+        .collect();
+    drops.disconnected = (0..n_flash)
+        .filter(|&i| init[i].is_none() && !tied.contains(&part[i]))
+        .count();
+    drops.unregistered = (0..n_flash)
+        .filter(|&i| init[i].is_none() && tied.contains(&part[i]))
+        .count();
+    let pieces = tied.len();
     if let Some(d) = &mut second_drops {
         d.unregistered = (n_flash..n).filter(|&i| init[i].is_none()).count();
     }
@@ -623,6 +652,7 @@ pub fn register(
         fine_pairs,
         reference_anchored,
         with_markers,
+        pieces,
         solve: report,
     })
 }

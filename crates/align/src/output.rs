@@ -76,6 +76,7 @@ pub fn write(
     warnings: Vec<String>,
     self_check: Vec<crate::selfcheck::FrameCheck>,
     coverage: f64,
+    video_decoding: Option<crate::VideoDecoding>,
     progress: &dyn Progress,
 ) -> Result<AlignSummary, AlignError> {
     let t0 = std::time::Instant::now();
@@ -270,6 +271,7 @@ pub fn write(
         fine_pairs: reg.fine_pairs,
         reference_anchored: reg.reference_anchored,
         frames_with_markers: reg.with_markers,
+        pieces: reg.pieces,
         solve_rms_cm: reg.solve.rms_after,
         solve_median_cm: reg.solve.median_after,
         solve_iterations: reg.solve.iterations,
@@ -281,6 +283,7 @@ pub fn write(
         warnings,
         self_check,
         coverage,
+        video_decoding,
     };
     #[derive(serde::Serialize)]
     struct Record<'a> {

@@ -403,9 +403,22 @@ fn run_align(a: &AlignArgs) -> Result<()> {
         f.decoded, f.kept, f.blurry, f.disconnected, f.unregistered, f.outside
     );
     say!(
-        "matching: {} coarse pairs tested, {} connected, {} fine pairs; {} frames see markers, {} anchored to the reference photo",
-        s.coarse_pairs_tested, s.connected_pairs, s.fine_pairs, s.frames_with_markers, s.reference_anchored
+        "matching: {} coarse pairs tested, {} connected, {} fine pairs; {} frames see markers, {} anchored to the reference photo{}",
+        s.coarse_pairs_tested, s.connected_pairs, s.fine_pairs, s.frames_with_markers, s.reference_anchored,
+        if s.pieces > 1 { format!("; the frames form {} pieces, each tied to the plane by the reference photo or markers", s.pieces) } else { String::new() }
     );
+    if let Some(v) = &s.video_decoding {
+        say!(
+            "video: {} {}, matrix {}, range {}: decoded with {}",
+            v.codec,
+            v.pix_fmt,
+            v.matrix_tag.as_deref().unwrap_or("untagged"),
+            v.range_tag
+                .as_deref()
+                .unwrap_or("untagged (limited assumed)"),
+            v.decoded_with.to_uppercase().replace("BT", "BT.")
+        );
+    }
     if let Some(t) = &s.second {
         say!("second video: {}", t.describe());
     }

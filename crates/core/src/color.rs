@@ -131,3 +131,77 @@ mod tests {
         assert!(k[0].abs() < 1e-9);
     }
 }
+
+/// Luma coefficients `(Kr, Kb)` of a Y'CbCr matrix.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct YcbcrMatrix {
+    /// Red weight of luma.
+    pub kr: f64,
+    /// Blue weight of luma.
+    pub kb: f64,
+}
+
+impl YcbcrMatrix {
+    /// ITU-R BT.601 (SD video; what OpenCV's and FFmpeg's converters assume untagged).
+    pub const BT601: Self = Self {
+        kr: 0.299,
+        kb: 0.114,
+    };
+    /// ITU-R BT.709 (HD video; what phones record in SDR).
+    pub const BT709: Self = Self {
+        kr: 0.2126,
+        kb: 0.0722,
+    };
+
+    /// `(Y', Cb, Cr)` from `(R', G', B')`, unscaled (Y' in [0, 1], Cb and Cr in
+    /// [-0.5, 0.5]); limited or full range scale all three alike afterwards.
+    pub fn from_rgb(&self) -> crate::geometry::Mat3 {
+        let (kr, kb) = (self.kr, self.kb);
+        let kg = 1.0 - kr - kb;
+        let (cb, cr) = (0.5 / (1.0 - kb), 0.5 / (1.0 - kr));
+        crate::geometry::Mat3::new(
+            kr,
+            kg,
+            kb,
+            -kr * cb,
+            -kg * cb,
+            (1.0 - kb) * cb,
+            (1.0 - kr) * cr,
+            -kg * cr,
+            -kb * cr,
+        )
+    }
+}
+
+/// The 3x3 map on gamma-encoded `(R', G', B')` that turns colours a decoder produced
+/// with the wrong Y'CbCr matrix (`assumed`) into those of the stream's own
+/// (`actual`): `from_rgb(actual)^-1 * from_rgb(assumed)`. Its inverse makes a
+/// converter that applies `assumed` store what `actual` would.
+pub fn ycbcr_matrix_fix(actual: YcbcrMatrix, assumed: YcbcrMatrix) -> crate::geometry::Mat3 {
+    actual
+        .from_rgb()
+        .try_inverse()
+        .map_or_else(crate::geometry::Mat3::identity, |inv| {
+            inv * assumed.from_rgb()
+        })
+}
+
+#[cfg(test)]
+mod ycbcr_tests {
+    use super::*;
+    use crate::geometry::Vec3;
+
+    #[test]
+    fn grey_keeps_and_the_fix_inverts_a_wrong_decode() {
+        let fix = ycbcr_matrix_fix(YcbcrMatrix::BT709, YcbcrMatrix::BT601);
+        // Greys have Cb = Cr = 0 under every matrix: unchanged.
+        let g = fix * Vec3::new(0.4, 0.4, 0.4);
+        assert!((g - Vec3::new(0.4, 0.4, 0.4)).norm() < 1e-12);
+        // Encode a colour with BT.709, decode it as BT.601, fix: the colour again.
+        let rgb = Vec3::new(0.8, 0.2, 0.1);
+        let ycc = YcbcrMatrix::BT709.from_rgb() * rgb;
+        let wrong = YcbcrMatrix::BT601.from_rgb().try_inverse().unwrap() * ycc;
+        assert!((wrong - rgb).norm() > 0.05, "{wrong:?}");
+        assert!((fix * wrong - rgb).norm() < 1e-12);
+    }
+}

@@ -182,7 +182,26 @@ pub fn probe_video(path: &Path) -> Result<VideoProbe, CvError> {
     })
 }
 
+/// Which Y'CbCr matrix frames are decoded with.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DecodingMatrix {
+    /// BT.601: tagged so (`bt470bg`, `smpte170m`) or untagged (what FFmpeg assumes).
+    Bt601,
+    /// BT.709, as tagged (phones' SDR video).
+    Bt709,
+}
+
 impl VideoProbe {
+    /// The Y'CbCr matrix the frames are decoded with: the stream's own where it is
+    /// tagged BT.709, else BT.601.
+    pub fn decoding_matrix(&self) -> DecodingMatrix {
+        match self.matrix.as_deref() {
+            Some("bt709") => DecodingMatrix::Bt709,
+            _ => DecodingMatrix::Bt601,
+        }
+    }
+
     /// Refuse what the decoder would read wrongly: still images, HDR or wide-gamut
     /// video (decoded as if it were sRGB), non-square pixels. The error names what was
     /// found and what to record instead.

@@ -8,8 +8,10 @@ use std::path::{Path, PathBuf};
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 use opencv::videoio;
+use svbrdf_core::color::YcbcrMatrix;
 use svbrdf_core::image::ImageU8;
 
+use crate::probe::DecodingMatrix;
 use crate::{mat_to_rgb, rgb_to_mat, Context, CvError};
 
 /// Stream properties reported by the container.
@@ -28,6 +30,9 @@ pub struct VideoInfo {
 /// A streaming video decoder.
 pub struct VideoReader {
     probe: crate::probe::VideoProbe,
+    /// Colour correction after OpenCV's conversion (BGR order), where the stream's
+    /// Y'CbCr matrix is not the BT.601 one OpenCV applies whatever the tags say.
+    fix: Option<Mat>,
     cap: videoio::VideoCapture,
     path: PathBuf,
     info: VideoInfo,
@@ -76,8 +81,16 @@ impl VideoReader {
             fps: get(&cap, videoio::CAP_PROP_FPS)?,
             frame_count: get(&cap, videoio::CAP_PROP_FRAME_COUNT)?.max(0.0) as u64,
         };
+        let fix = match probe.decoding_matrix() {
+            DecodingMatrix::Bt709 => Some(bgr_matrix(&svbrdf_core::color::ycbcr_matrix_fix(
+                YcbcrMatrix::BT709,
+                YcbcrMatrix::BT601,
+            ))?),
+            DecodingMatrix::Bt601 => None,
+        };
         let mut reader = Self {
             probe,
+            fix,
             cap,
             path: path.into(),
             info,
@@ -103,7 +116,14 @@ impl VideoReader {
             .cap
             .read(&mut self.frame)
             .ctx(|| format!("decoding {}", self.path.display()))?;
-        Ok(ok && !self.frame.empty())
+        let ok = ok && !self.frame.empty();
+        if let (true, Some(m)) = (ok, &self.fix) {
+            let mut fixed = Mat::default();
+            opencv::core::transform(&self.frame, &mut fixed, m)
+                .ctx(|| format!("converting colours of {}", self.path.display()))?;
+            self.frame = fixed;
+        }
+        Ok(ok)
     }
 
     fn decode(&mut self) -> Result<Option<ImageU8>, CvError> {
@@ -190,6 +210,15 @@ impl VideoReader {
     }
 }
 
+/// A 3x3 map on RGB as an OpenCV matrix acting on BGR pixels.
+fn bgr_matrix(m: &svbrdf_core::geometry::Mat3) -> Result<Mat, CvError> {
+    // Reverse rows and columns: BGR = P RGB with P the anti-diagonal permutation.
+    let rows: Vec<Vec<f32>> = (0..3)
+        .map(|r| (0..3).map(|c| m[(2 - r, 2 - c)] as f32).collect())
+        .collect();
+    Mat::from_slice_2d(&rows).ctx(|| "colour matrix".into())
+}
+
 /// A decoded frame reduced to what alignment keeps of it.
 #[derive(Debug, Clone)]
 pub struct LumaFrame {
@@ -236,6 +265,8 @@ pub struct VideoWriter {
     width: u32,
     height: u32,
     frames: u64,
+    /// For BT.709 output: the RGB pre-correction (OpenCV's encoder applies BT.601).
+    bt709: Option<svbrdf_core::geometry::Mat3>,
 }
 
 impl VideoWriter {
@@ -272,7 +303,19 @@ impl VideoWriter {
             width,
             height,
             frames: 0,
+            bt709: None,
         })
+    }
+
+    /// As [`create`](Self::create), but the video is BT.709 limited range, tagged so
+    /// (as phones record SDR video): frames are stored with BT.709's Y'CbCr matrix.
+    pub fn create_bt709(path: &Path, fps: f64, width: u32, height: u32) -> Result<Self, CvError> {
+        let mut w = Self::create(path, fps, width, height)?;
+        w.bt709 = Some(svbrdf_core::color::ycbcr_matrix_fix(
+            YcbcrMatrix::BT601,
+            YcbcrMatrix::BT709,
+        ));
+        Ok(w)
     }
 
     /// Append a frame (must match the size given at creation).
@@ -284,7 +327,25 @@ impl VideoWriter {
                 expected: format!("{}x{} as the video was created", self.width, self.height),
             });
         }
-        let mat = rgb_to_mat(img)?;
+        let mat = match &self.bt709 {
+            None => rgb_to_mat(img)?,
+            Some(m) => {
+                // OpenCV converts with BT.601: hand it the R'G'B' whose BT.601 Y'CbCr
+                // is the BT.709 Y'CbCr of the frame (rounded; saturated colours clip).
+                let mut pre = img.clone();
+                for px in pre.data.chunks_exact_mut(3) {
+                    let v = m * svbrdf_core::geometry::Vec3::new(
+                        f64::from(px[0]),
+                        f64::from(px[1]),
+                        f64::from(px[2]),
+                    );
+                    for (o, v) in px.iter_mut().zip(v.iter()) {
+                        *o = v.round().clamp(0.0, 255.0) as u8;
+                    }
+                }
+                rgb_to_mat(&pre)?
+            }
+        };
         self.writer
             .write(&mat)
             .ctx(|| format!("encoding {}", self.path.display()))?;
@@ -297,6 +358,148 @@ impl VideoWriter {
         self.writer
             .release()
             .ctx(|| format!("closing {}", self.path.display()))?;
+        if self.bt709.is_some() {
+            tag_bt709(&self.path)?;
+        }
         Ok(self.frames)
+    }
+}
+
+/// Tag an H.264 file as BT.709 limited range in its bitstream (FFmpeg's
+/// `h264_metadata` filter; the stream is copied, not re-encoded).
+fn tag_bt709(path: &Path) -> Result<(), CvError> {
+    let tmp = path.with_extension("tagging.mp4");
+    let out = std::process::Command::new("ffmpeg")
+        .args(["-v", "error", "-nostdin", "-y", "-i"])
+        .arg(path)
+        .args([
+            "-c",
+            "copy",
+            "-bsf:v",
+            "h264_metadata=colour_primaries=1:transfer_characteristics=1:matrix_coefficients=1:video_full_range_flag=0",
+        ])
+        .arg(&tmp)
+        .output()
+        .map_err(|e| CvError::File {
+            path: path.into(),
+            message: format!("running ffmpeg to tag the video as BT.709: {e} (install Debian's ffmpeg package)"),
+        })?;
+    if !out.status.success() {
+        let _ = std::fs::remove_file(&tmp);
+        return Err(CvError::File {
+            path: path.into(),
+            message: format!(
+                "ffmpeg could not tag the video as BT.709: {}",
+                String::from_utf8_lossy(&out.stderr).trim()
+            ),
+        });
+    }
+    std::fs::rename(&tmp, path).map_err(|e| CvError::File {
+        path: path.into(),
+        message: format!("replacing it with its tagged copy: {e}"),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Mean decoded colour of a video's first frame.
+    fn first_colour(path: &Path) -> [f64; 3] {
+        let mut r = VideoReader::open(path).expect("open");
+        let img = r.read().expect("read").expect("frame");
+        let mut sum = [0.0; 3];
+        for px in img.data.chunks_exact(3) {
+            for c in 0..3 {
+                sum[c] += f64::from(px[c]);
+            }
+        }
+        let n = (img.data.len() / 3) as f64;
+        sum.map(|v| v / n)
+    }
+
+    fn close(a: [f64; 3], b: [f64; 3], tol: f64) -> bool {
+        a.iter().zip(&b).all(|(x, y)| (x - y).abs() <= tol)
+    }
+
+    #[test]
+    fn bt709_video_decodes_to_its_colours_written_by_ffmpeg_or_by_us() {
+        let Ok(o) = std::process::Command::new("ffmpeg")
+            .arg("-version")
+            .output()
+        else {
+            eprintln!("SKIP: ffmpeg not installed (run scripts/setup.sh)");
+            return;
+        };
+        assert!(o.status.success());
+        let tmp = tempfile::tempdir().expect("tmp");
+        let want = [200.0, 60.0, 30.0];
+        // Files from FFmpeg's own encoder, with BT.709's matrix and tags and with
+        // BT.601 untagged: we decode them as FFmpeg's converter does when told the
+        // matrix (the reference decode).
+        for (name, matrix, args) in [
+            (
+                "ffmpeg709.mp4",
+                "bt709",
+                &[
+                    "-vf",
+                    "scale=out_color_matrix=bt709:out_range=tv",
+                    "-colorspace",
+                    "bt709",
+                    "-color_primaries",
+                    "bt709",
+                    "-color_trc",
+                    "bt709",
+                    "-color_range",
+                    "tv",
+                ][..],
+            ),
+            ("ffmpeg601.mp4", "bt601", &[][..]),
+        ] {
+            let p = tmp.path().join(name);
+            let st = std::process::Command::new("ffmpeg")
+                .args(["-v", "error", "-nostdin", "-f", "lavfi", "-i"])
+                .arg("color=c=0xC83C1E:size=64x64:rate=10")
+                .args(["-frames:v", "10", "-c:v", "libx264", "-pix_fmt", "yuv420p"])
+                .args(args)
+                .arg(&p)
+                .status()
+                .expect("ffmpeg");
+            assert!(st.success());
+            let o = std::process::Command::new("ffmpeg")
+                .args(["-v", "error", "-nostdin", "-i"])
+                .arg(&p)
+                .args(["-frames:v", "1", "-vf"])
+                .arg(format!("scale=in_color_matrix={matrix}:in_range=tv"))
+                .args(["-f", "rawvideo", "-pix_fmt", "rgb24", "-"])
+                .output()
+                .expect("ffmpeg decode");
+            assert!(o.status.success() && o.stdout.len() >= 3);
+            let reference = [0, 1, 2].map(|c| f64::from(o.stdout[c]));
+            let got = first_colour(&p);
+            assert!(
+                close(got, reference, 2.0),
+                "{name}: {got:?} vs FFmpeg's {reference:?}"
+            );
+            // And near the colour asked for (FFmpeg's colour source is itself Y'CbCr).
+            assert!(close(got, want, 6.0), "{name}: {got:?}");
+        }
+        // Our writer's BT.709 output: tagged, and the colours come back.
+        let p = tmp.path().join("ours709.mp4");
+        let mut w = VideoWriter::create_bt709(&p, 10.0, 64, 64).expect("writer");
+        let mut img = ImageU8::new(64, 64, 3);
+        for px in img.data.chunks_exact_mut(3) {
+            px.copy_from_slice(&[200, 60, 30]);
+        }
+        for _ in 0..10 {
+            w.write(&img).expect("write");
+        }
+        assert_eq!(w.finish().expect("finish"), 10);
+        let probe = crate::probe::probe_video(&p).expect("probe");
+        assert_eq!(probe.matrix.as_deref(), Some("bt709"));
+        assert_eq!(probe.range.as_deref(), Some("tv"));
+        assert_eq!(probe.decoding_matrix(), DecodingMatrix::Bt709);
+        let got = first_colour(&p);
+        assert!(close(got, want, 3.0), "ours: {got:?}");
     }
 }

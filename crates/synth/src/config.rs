@@ -68,6 +68,10 @@ pub struct VideoSpec {
     /// draw in [-k1_spread, k1_spread] (0: exactly `k1`).
     #[serde(default)]
     pub k1_spread: f64,
+    /// Store the video as phones record SDR: BT.709 Y'CbCr matrix, limited range,
+    /// tagged so (false: BT.601, untagged, what FFmpeg assumes).
+    #[serde(default)]
+    pub bt709: bool,
 }
 
 /// The hand-held sweep of the flash camera.
@@ -263,6 +267,7 @@ impl SynthConfig {
                 k2: 0.01,
                 breathing: 0.01,
                 k1_spread: 0.0,
+                bt709: false,
             },
             sweep: SweepSpec {
                 distance_min_cm: 7.0,
@@ -330,7 +335,7 @@ impl SynthConfig {
     /// five colours, a repeated motif, grout), filmed from 10-15 cm so that markers are
     /// fully in view in few frames; a no-flash reference photo at 27 cm, 4:3, tilted 4
     /// degrees and rolled 8; k1 drawn per capture in [-0.05, 0.05] with focus
-    /// breathing; ambient light about 15% of the flash.
+    /// breathing; ambient light about 15% of the flash; BT.709 limited-range video.
     pub fn hard() -> Self {
         Self {
             preset: "hard".into(),
@@ -344,6 +349,7 @@ impl SynthConfig {
                 duration_s: 10.0,
                 k1: 0.0,
                 k1_spread: 0.05,
+                bt709: true,
                 ..Self::tiny().video
             },
             sweep: SweepSpec {

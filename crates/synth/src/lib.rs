@@ -271,7 +271,11 @@ pub fn synthesize(
         ambient: cfg.light.ambient,
     };
     let mut blur_rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0xB1B1);
-    let mut writer = VideoWriter::create(&dir.join("flash.mp4"), v.fps, v.width, v.height)?;
+    let mut writer = if v.bt709 {
+        VideoWriter::create_bt709(&dir.join("flash.mp4"), v.fps, v.width, v.height)?
+    } else {
+        VideoWriter::create(&dir.join("flash.mp4"), v.fps, v.width, v.height)?
+    };
     let mut flash_frames = Vec::with_capacity(n_frames as usize);
     progress.stage("flash video", n_frames);
     for i in 0..n_frames {
