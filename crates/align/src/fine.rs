@@ -232,15 +232,16 @@ pub(crate) fn reference_anchors_patch(
     rfe: &ReferenceFeatures,
     cfg: &AlignConfig,
     thr_cm: f64,
-) -> Result<Vec<([f64; 2], Vec2)>, AlignError> {
+) -> Result<(Vec<([f64; 2], Vec2)>, usize), AlignError> {
     let (Some(ga), Some(gr), Some(index)) = (f.grey.as_deref(), rfe.grey.as_ref(), &rfe.index)
     else {
-        return Ok(Vec::new());
+        return Ok((Vec::new(), 0));
     };
     let m = match_into(&f.coarse, index, 0.8)?;
     let min = fine_min(f, cfg);
-    if m.len() < min {
-        return Ok(Vec::new());
+    // Fewer candidates than needed are still verified, to say how close the frame came.
+    if m.len() < 8 {
+        return Ok((Vec::new(), 0));
     }
     let src = pts(&f.coarse, m.iter().map(|x| x.0));
     let dst: Vec<[f64; 2]> = m
@@ -254,15 +255,15 @@ pub(crate) fn reference_anchors_patch(
         rfe.plane_from_pixel.apply(c + Vec2::new(1.0, 0.0)),
     ) {
         (Some(a), Some(b)) => (a - b).norm().max(1e-9),
-        _ => return Ok(Vec::new()),
+        _ => return Ok((Vec::new(), 0)),
     };
     let Some(Robust { model, inliers }) = estimate_homography(&src, &dst, thr_cm / cm_per_ref_px)?
     else {
-        return Ok(Vec::new());
+        return Ok((Vec::new(), 0));
     };
     let keep: Vec<usize> = (0..src.len()).filter(|&k| inliers[k]).collect();
     if keep.len() < min {
-        return Ok(Vec::new());
+        return Ok((Vec::new(), keep.len()));
     }
     let h_fr = Homography(svbrdf_core::geometry::mat3_from_rows(&model));
     let (fp, rp): (Vec<Vec2>, Vec<Vec2>) = keep
@@ -287,5 +288,6 @@ pub(crate) fn reference_anchors_patch(
         .into_iter()
         .filter_map(|(p, r)| Some((p, rfe.plane_from_pixel.apply(r)?)))
         .collect();
-    Ok(if out.len() >= min { out } else { Vec::new() })
+    let verified = out.len();
+    Ok((if verified >= min { out } else { Vec::new() }, verified))
 }

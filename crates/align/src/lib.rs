@@ -132,6 +132,14 @@ pub struct AlignSummary {
     /// one connected chain; more: breaks bridged by the reference photo or markers).
     #[serde(default)]
     pub pieces: usize,
+    /// Per sampled sharp frame: (video frame number, matches with the reference photo
+    /// its verification kept, whole markers seen); a frame is anchored with at least
+    /// `reference_matches_needed` matches or one marker of the reference photo's.
+    #[serde(default)]
+    pub per_frame_anchors: Vec<(u64, usize, usize)>,
+    /// Verified matches with the reference photo a frame needs to be anchored by them.
+    #[serde(default)]
+    pub reference_matches_needed: usize,
     /// Global solve statistics.
     pub solve_rms_cm: f64,
     /// Median residual after the solve, cm.

@@ -74,6 +74,9 @@ pub struct Registration {
     pub with_markers: usize,
     /// Pieces of the connectivity map tied to the plane separately (1: one chain).
     pub pieces: usize,
+    /// Per sampled sharp frame (video frame number): matches with the reference photo
+    /// that its verification kept, and whole markers seen.
+    pub per_frame_anchors: Vec<(u64, usize, usize)>,
     /// Solve statistics.
     pub solve: SolveReport,
 }
@@ -286,11 +289,13 @@ pub fn register(
     // Plane cm per frame pixel at a typical capture height (60% of the reference's).
     let cm_per_px = rf.height.clamp(5.0, 50.0) * 0.6 / intrinsics.fx;
     // Fine matches with the reference photo: absolute anchors (beyond the paper).
-    let anchors: Vec<Vec<([f64; 2], Vec2)>> = frames
+    // Each frame's anchors and how many matches with the reference photo it verified
+    // (also where that was too few: failures say how close the frames came).
+    let anchored: Vec<(Vec<([f64; 2], Vec2)>, usize)> = frames
         .par_iter()
         .map(|f| {
             let out = match ref_features {
-                None => Ok(Vec::new()),
+                None => Ok((Vec::new(), 0)),
                 Some(rfe) if cfg.fine_method == FineMethod::Patch => {
                     let thr_px = cfg.fine_inlier_px * f64::from(f.width.max(f.height)) / 3840.0;
                     reference_anchors_patch(f, rfe, cfg, thr_px * cm_per_px)
@@ -298,8 +303,8 @@ pub fn register(
                 Some(rfe) => match_one_to_one(&f.fine, &rfe.features, 0.8)
                     .and_then(|m| {
                         let min = fine_min(f, cfg);
-                        if m.len() < min {
-                            return Ok(Vec::new());
+                        if m.len() < 8 {
+                            return Ok((Vec::new(), 0));
                         }
                         let src = pts(&f.fine, m.iter().map(|x| x.0));
                         let dst: Vec<[f64; 2]> = m
@@ -311,15 +316,15 @@ pub fn register(
                         let thr_px = cfg.fine_inlier_px * f64::from(f.width.max(f.height)) / 3840.0;
                         let thr_cm = thr_px * cm_per_px;
                         Ok(match estimate_homography(&src, &dst, thr_cm)? {
-                            Some(Robust { inliers: inl, .. })
-                                if inl.iter().filter(|v| **v).count() >= min =>
-                            {
-                                (0..src.len())
+                            Some(Robust { inliers: inl, .. }) => {
+                                let kept: Vec<([f64; 2], Vec2)> = (0..src.len())
                                     .filter(|&k| inl[k])
                                     .map(|k| (src[k], Vec2::new(dst[k][0], dst[k][1])))
-                                    .collect()
+                                    .collect();
+                                let verified = kept.len();
+                                (if verified >= min { kept } else { Vec::new() }, verified)
                             }
-                            _ => Vec::new(),
+                            None => (Vec::new(), 0),
                         })
                     })
                     .map_err(AlignError::from),
@@ -330,6 +335,13 @@ pub fn register(
         .collect::<Result<_, AlignError>>()?;
     progress.finish();
     lap("fine matching");
+    let reference_matches: Vec<usize> = anchored.iter().map(|a| a.1).collect();
+    let per_frame_anchors: Vec<(u64, usize, usize)> = frames
+        .iter()
+        .zip(&reference_matches)
+        .map(|(f, &m)| (f.index, m, f.markers.len()))
+        .collect();
+    let anchors: Vec<Vec<([f64; 2], Vec2)>> = anchored.into_iter().map(|a| a.0).collect();
     // The patch images (1 GB for 120 4K frames) are not needed any more.
     for f in &mut frames {
         f.grey = None;
@@ -425,11 +437,20 @@ pub fn register(
     }
     if registered.is_empty() {
         let partial = frames.iter().filter(|f| !f.markers.is_empty()).count();
+        let closest = match (0..n).max_by_key(|&i| (reference_matches[i], std::cmp::Reverse(i))) {
+            Some(i) if reference_matches[i] > 0 => format!(
+                " (closest: frame {} with {} verified matches of the {} needed)",
+                frames[i].index,
+                reference_matches[i],
+                fine_min(&frames[i], cfg)
+            ),
+            _ => " (none verified a single match with it: is it a photo of this surface?)".into(),
+        };
         return Err(AlignError::Connect(format!(
-            "no frame could be tied to the plane: of the {n} connected sharp frames sampled (every {}th of {} decoded), {with_markers} showed a whole marker of the reference photo's ({partial} any marker of the dictionary) and {reference_anchored} matched the reference photo well enough ({} verified matches needed); expected at least one of either. Film passing slowly over each marker so that it is fully in view for a moment, or lower frame_step in the camera description to sample more frames",
+            "no frame could be tied to the plane: of the {n} sharp frames sampled (every {}th of {} decoded; the connectivity map had {} pieces), {with_markers} showed a whole marker of the reference photo's ({partial} any marker of the dictionary) and {reference_anchored} matched the reference photo well enough{closest}; expected at least one of either. Film passing slowly over each marker so that it is fully in view for a moment, or lower frame_step in the camera description to sample more frames",
             cfg.camera.frame_step,
             drops.decoded,
-            cfg.fine_min_inliers
+            parts.len()
         )));
     }
 
@@ -653,6 +674,7 @@ pub fn register(
         reference_anchored,
         with_markers,
         pieces,
+        per_frame_anchors,
         solve: report,
     })
 }

@@ -272,6 +272,11 @@ pub fn write(
         reference_anchored: reg.reference_anchored,
         frames_with_markers: reg.with_markers,
         pieces: reg.pieces,
+        per_frame_anchors: reg.per_frame_anchors.clone(),
+        reference_matches_needed: reg
+            .frames
+            .first()
+            .map_or(cfg.fine_min_inliers, |f| crate::fine::fine_min(f, cfg)),
         solve_rms_cm: reg.solve.rms_after,
         solve_median_cm: reg.solve.median_after,
         solve_iterations: reg.solve.iterations,
