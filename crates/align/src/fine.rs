@@ -225,6 +225,10 @@ pub(crate) fn fine_pair_patch(
     )))
 }
 
+/// A frame's anchors on the reference photo (frame pixel, plane cm) and how many
+/// matches its verification kept (also when too few to anchor it).
+pub(crate) type ReferenceAnchors = (Vec<([f64; 2], Vec2)>, usize);
+
 /// Absolute anchors of one frame from the reference photo by patch refinement:
 /// (frame px, plane cm).
 pub(crate) fn reference_anchors_patch(
@@ -232,7 +236,7 @@ pub(crate) fn reference_anchors_patch(
     rfe: &ReferenceFeatures,
     cfg: &AlignConfig,
     thr_cm: f64,
-) -> Result<(Vec<([f64; 2], Vec2)>, usize), AlignError> {
+) -> Result<ReferenceAnchors, AlignError> {
     let (Some(ga), Some(gr), Some(index)) = (f.grey.as_deref(), rfe.grey.as_ref(), &rfe.index)
     else {
         return Ok((Vec::new(), 0));

@@ -291,7 +291,7 @@ pub fn register(
     // Fine matches with the reference photo: absolute anchors (beyond the paper).
     // Each frame's anchors and how many matches with the reference photo it verified
     // (also where that was too few: failures say how close the frames came).
-    let anchored: Vec<(Vec<([f64; 2], Vec2)>, usize)> = frames
+    let anchored: Vec<ReferenceAnchors> = frames
         .par_iter()
         .map(|f| {
             let out = match ref_features {
