@@ -22,6 +22,8 @@ use svbrdf_core::plane::{PlaneGrid, Region};
 
 /// Fine cells per cm of the comparison grid.
 const FINE_PX_PER_CM: f64 = 10.0;
+/// Blocks whose displacements differ by less than this (or a quarter of their size) agree, mm.
+const CONSENSUS_MM: f64 = 0.5;
 /// Coarse cells are this many fine cells.
 const COARSE: usize = 4;
 /// Block side in coarse cells (4 cm).
@@ -74,8 +76,13 @@ pub struct FrameCheck {
     pub blocks: usize,
     /// Blocks that matched clearly.
     pub matched: usize,
-    /// Median displacement of the matched blocks from the reference photo, mm
-    /// (`None`: no block matched clearly, the frame is unverified).
+    /// Matched blocks that agree on the frame's displacement (see `shift_mm`).
+    #[serde(default)]
+    pub agreeing: usize,
+    /// Displacement from the reference photo that the largest group of agreeing
+    /// matched blocks shows (within 0.5 mm or a quarter of it; the median of theirs),
+    /// mm (`None`: no block matched clearly, or no group holds a third of them: the
+    /// frame is unverified).
     pub shift_mm: Option<f64>,
     /// Largest displacement of a matched block, mm.
     pub max_shift_mm: Option<f64>,
@@ -381,7 +388,7 @@ fn check_frame(
                 if let Some((s, v, nb)) = chosen.filter(|c| c.1 >= MIN_SCORE) {
                     let dx = s.0 as f64 + parabola(nb[0], v, nb[1]);
                     let dy = s.1 as f64 + parabola(nb[2], v, nb[3]);
-                    shifts.push(10.0 * dx.hypot(dy) / FINE_PX_PER_CM);
+                    shifts.push((10.0 * dx / FINE_PX_PER_CM, 10.0 * dy / FINE_PX_PER_CM));
                     scores.push(v);
                 }
             }
@@ -395,18 +402,61 @@ fn check_frame(
     };
     let max = shifts
         .iter()
-        .copied()
+        .map(|s| s.0.hypot(s.1))
         .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
+    let (shift, agreeing) = consensus(&shifts);
     FrameCheck {
         kept_index: k,
         frame: f.frame,
         stream: f.stream,
         blocks,
         matched: shifts.len(),
-        shift_mm: median(&mut shifts),
+        agreeing,
+        shift_mm: shift,
         max_shift_mm: max,
         score: median(&mut scores),
     }
+}
+
+/// The displacement (mm) most of a frame's blocks agree on, and how many agree: a
+/// misregistered frame moves its blocks together, while blocks that matched far away
+/// on their own (a highlight where the reference photo has none, a repeating
+/// pattern) point every which way. The largest group of agreeing blocks wins; `None`
+/// when it has fewer than a third of the matched blocks (or fewer than 2): the frame
+/// is then unverified, not inconsistent.
+fn consensus(shifts: &[(f64, f64)]) -> (Option<f64>, usize) {
+    let close = |a: (f64, f64), b: (f64, f64)| {
+        let tol = (0.25 * a.0.hypot(a.1)).max(CONSENSUS_MM);
+        (a.0 - b.0).hypot(a.1 - b.1) <= tol
+    };
+    let Some(best) = shifts
+        .iter()
+        .map(|&a| {
+            let support = shifts.iter().filter(|&&b| close(a, b)).count();
+            (support, a)
+        })
+        .max_by(|x, y| {
+            x.0.cmp(&y.0)
+                .then_with(|| y.1 .0.hypot(y.1 .1).total_cmp(&x.1 .0.hypot(x.1 .1)))
+        })
+        .map(|(_, a)| a)
+    else {
+        return (None, 0);
+    };
+    let mut xs: Vec<f64> = Vec::new();
+    let mut ys: Vec<f64> = Vec::new();
+    for &b in shifts.iter().filter(|&&b| close(best, b)) {
+        xs.push(b.0);
+        ys.push(b.1);
+    }
+    let agreeing = xs.len();
+    if agreeing < 2.max(shifts.len().div_ceil(3)) {
+        return (None, agreeing);
+    }
+    xs.sort_by(f64::total_cmp);
+    ys.sort_by(f64::total_cmp);
+    let (mx, my) = (xs[xs.len() / 2], ys[ys.len() / 2]);
+    (Some(mx.hypot(my)), agreeing)
 }
 
 /// Runs of consecutive kept frames, as "a-b" frame-number ranges, for messages.
@@ -577,6 +627,54 @@ mod tests {
                 assert!(!c.inconsistent(1.0));
             }
         }
+    }
+
+    #[test]
+    fn blocks_must_agree_to_move_a_frame() {
+        // Five blocks where registered, six far off in different directions (a
+        // highlight's blocks matching anywhere): the frame is where it was registered.
+        let mut v = vec![
+            (0.01, 0.0),
+            (-0.01, 0.02),
+            (0.0, 0.01),
+            (0.05, 0.0),
+            (0.02, -0.01),
+        ];
+        v.extend([
+            (-3.4, 27.0),
+            (-4.6, 28.9),
+            (9.6, 1.4),
+            (6.5, 5.7),
+            (6.5, -1.1),
+            (-12.0, 2.0),
+        ]);
+        let (shift, agreeing) = consensus(&v);
+        assert!(shift.is_some_and(|s| s < 0.05), "{shift:?}");
+        assert_eq!(agreeing, 5);
+        // A frame moved 3 mm moves its blocks together, even with a few strays.
+        let mut w = vec![
+            (3.0, 0.1),
+            (2.9, 0.0),
+            (3.1, -0.1),
+            (3.0, 0.05),
+            (2.95, 0.1),
+        ];
+        w.extend([(0.0, 0.0), (-8.0, 4.0)]);
+        let (shift, agreeing) = consensus(&w);
+        assert!(shift.is_some_and(|s| (s - 3.0).abs() < 0.1), "{shift:?}");
+        assert_eq!(agreeing, 5);
+        // Every block somewhere else: unverified, not inconsistent.
+        let u = [
+            (5.0, 0.0),
+            (0.0, 5.0),
+            (-5.0, 0.0),
+            (0.0, -5.0),
+            (9.0, 9.0),
+            (-9.0, 9.0),
+            (9.0, -9.0),
+        ];
+        assert_eq!(consensus(&u).0, None);
+        assert_eq!(consensus(&[]), (None, 0));
     }
 
     #[test]
