@@ -381,6 +381,32 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
                 a["summary"]["reference_anchored"]
             ),
         ));
+        let pieces = a["summary"]["pieces"].as_u64().unwrap_or(1);
+        if pieces > 1 {
+            rows.push((
+                "pieces".into(),
+                format!(
+                    "the frames form {pieces} pieces that no frame pair connects; each is tied to the plane by the reference photo or markers (checked frame by frame by the self-check)"
+                ),
+            ));
+        }
+        let v = &a["summary"]["video_decoding"];
+        if v.is_object() {
+            rows.push((
+                "video".into(),
+                format!(
+                    "{} {}, Y'CbCr matrix {}, range {}: decoded with {}",
+                    v["codec"].as_str().unwrap_or("?"),
+                    v["pix_fmt"].as_str().unwrap_or("?"),
+                    v["matrix_tag"].as_str().unwrap_or("untagged"),
+                    v["range_tag"].as_str().unwrap_or("untagged"),
+                    v["decoded_with"]
+                        .as_str()
+                        .unwrap_or("?")
+                        .replace("bt", "BT.")
+                ),
+            ));
+        }
         rows.push((
             "alignment timings".into(),
             timings(&a["summary"]["timings"]),
