@@ -226,6 +226,13 @@ impl AlignConfig {
                 "a finite weight >= 0",
             ));
         }
+        if self.sharpest_within > 30 {
+            return Err(AlignError::invalid(
+                "sharpest-within window",
+                self.sharpest_within,
+                "0 to 30 frames on each side",
+            ));
+        }
         let sc = &self.self_check;
         if !(sc.max_shift_mm > 0.0 && sc.max_shift_mm <= 100.0) {
             return Err(AlignError::invalid(

@@ -209,6 +209,10 @@ struct AlignArgs {
     /// (the time chain is always kept); default 8.
     #[arg(long)]
     max_pairs_per_frame: Option<usize>,
+    /// Use the sharpest frame within this many frames of every `frame_step`-th one
+    /// (default 1: the sharpest of three; 0: the paper's fixed sampling).
+    #[arg(long)]
+    sharpest_within: Option<u32>,
     #[command(flatten)]
     second: SecondArgs,
     /// Replace the output folder if it exists.
@@ -295,6 +299,9 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
     c.self_check.enabled = !a.no_self_check;
     if let Some(v) = a.max_pairs_per_frame {
         c.max_pairs_per_frame = v;
+    }
+    if let Some(v) = a.sharpest_within {
+        c.sharpest_within = v;
     }
     if let Some(p) = &a.second.second_camera {
         // Missing fields take the paper's two-camera values, not the flash phone's.

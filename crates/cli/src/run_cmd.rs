@@ -309,6 +309,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         all_pairs: false,
         no_self_check: false,
         max_pairs_per_frame: None,
+        sharpest_within: None,
         second: a.second.clone(),
         overwrite: true,
     };
