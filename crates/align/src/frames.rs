@@ -17,7 +17,7 @@ use svbrdf_cv::video::{luma_frame_of, LumaFrame, VideoReader};
 pub const MIN_VIDEO_FRAMES: u64 = 10;
 
 /// Long side of the thumbnails kept for the panorama, pixels.
-const THUMB_LONG: u32 = 480;
+pub(crate) const THUMB_LONG: u32 = 480;
 
 use crate::blur::blur_metric;
 use crate::config::{AlignConfig, FineMethod};

@@ -97,7 +97,8 @@ pub struct DropCounts {
     /// Every decoded frame's number and blur metric (eq. 1; higher is sharper).
     #[serde(default)]
     pub blur_metrics: Vec<(u64, f64)>,
-    /// Not in the largest connected component.
+    /// In a piece of the connectivity map that neither the reference photo nor a
+    /// marker ties to the plane.
     pub disconnected: usize,
     /// No usable homography (too few fine matches).
     pub unregistered: usize,
@@ -189,7 +190,7 @@ pub struct VideoDecoding {
     pub transfer_tag: Option<String>,
     /// The Y'CbCr matrix the frames were decoded with (`bt709` where tagged so,
     /// else `bt601`), then taken as sRGB-encoded R'G'B'.
-    pub decoded_with: String,
+    pub decoded_with: svbrdf_cv::probe::DecodingMatrix,
 }
 
 impl VideoDecoding {
@@ -201,11 +202,7 @@ impl VideoDecoding {
             matrix_tag: p.matrix.clone(),
             range_tag: p.range.clone(),
             transfer_tag: p.transfer.clone(),
-            decoded_with: match p.decoding_matrix() {
-                svbrdf_cv::probe::DecodingMatrix::Bt709 => "bt709",
-                svbrdf_cv::probe::DecodingMatrix::Bt601 => "bt601",
-            }
-            .into(),
+            decoded_with: p.decoding_matrix(),
         }
     }
 }
@@ -640,22 +637,9 @@ fn apply_self_check(
             checks.len()
         ));
     }
-    if bad.is_empty() {
+    let Some(what) = selfcheck::disagreement(checks, cfg.max_shift_mm) else {
         return Ok(());
-    }
-    let mut sorted: Vec<f64> = bad.iter().filter_map(|c| c.shift_mm).collect();
-    sorted.sort_by(f64::total_cmp);
-    let (median, worst) = (sorted[sorted.len() / 2], sorted[sorted.len() - 1]);
-    let frames: Vec<u64> = bad.iter().map(|c| c.frame).collect();
-    let what = format!(
-        "frames {} ({} of {} checked) lie {:.1}-{:.1} mm (median {:.1} mm) from where the reference photo shows the same texture",
-        selfcheck::ranges(&frames),
-        bad.len(),
-        checked.len(),
-        sorted[0],
-        worst,
-        median
-    );
+    };
     if bad.len() as f64 > cfg.max_inconsistent_share * checked.len() as f64 {
         return Err(AlignError::Solve(format!(
             "the registration failed its self-check: {what}, although the solve's residual is small (frames that drifted together, or matches one pattern repeat off on a repetitive texture); expected at most {:.0}% of the frames off by more than {} mm. Film again passing over each marker several times and keeping the phone 10-15 cm from the surface, or lower the frame step in the camera description",

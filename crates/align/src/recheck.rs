@@ -14,9 +14,6 @@ use svbrdf_core::progress::Progress;
 use crate::selfcheck::{self, CheckedFrame, FrameCheck};
 use crate::{AlignConfig, AlignError};
 
-/// Long side of the frame thumbnails compared (as alignment keeps them), pixels.
-const THUMB_LONG: u32 = 480;
-
 /// The outcome of checking a capture.
 #[derive(Debug, Clone)]
 pub struct CaptureCheck {
@@ -69,7 +66,7 @@ pub fn check_capture(
                 data: img.data.iter().map(|&v| enc.encode(f64::from(v))).collect(),
             },
         };
-        let thumb = svbrdf_cv::video::luma_frame_of(&rgb, THUMB_LONG)?.thumb;
+        let thumb = svbrdf_cv::video::luma_frame_of(&rgb, crate::frames::THUMB_LONG)?.thumb;
         if let Some(slot) = thumbs.get_mut(k) {
             *slot = Some(thumb);
         }

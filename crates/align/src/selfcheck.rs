@@ -459,6 +459,37 @@ fn consensus(shifts: &[(f64, f64)]) -> (Option<f64>, usize) {
     (Some(mx.hypot(my)), agreeing)
 }
 
+/// How many frames the check verified (their offset is known), and the largest offset
+/// among them, mm (0 when none).
+pub fn verified(checks: &[FrameCheck]) -> (usize, f64) {
+    checks
+        .iter()
+        .filter_map(|c| c.shift_mm)
+        .fold((0, 0.0), |(n, m), s| (n + 1, f64::max(m, s)))
+}
+
+/// The frames more than `limit_mm` off, said in one clause ("frames 31-68 (5 of 40
+/// checked) lie 2.9-3.1 mm (median 3.0 mm) from where the reference photo shows the
+/// same texture"), or `None` when no frame is.
+pub fn disagreement(checks: &[FrameCheck], limit_mm: f64) -> Option<String> {
+    let bad: Vec<&FrameCheck> = checks.iter().filter(|c| c.inconsistent(limit_mm)).collect();
+    let mut sorted: Vec<f64> = bad.iter().filter_map(|c| c.shift_mm).collect();
+    if sorted.is_empty() {
+        return None;
+    }
+    sorted.sort_by(f64::total_cmp);
+    let frames: Vec<u64> = bad.iter().map(|c| c.frame).collect();
+    Some(format!(
+        "frames {} ({} of {} checked) lie {:.1}-{:.1} mm (median {:.1} mm) from where the reference photo shows the same texture",
+        ranges(&frames),
+        bad.len(),
+        verified(checks).0,
+        sorted[0],
+        sorted[sorted.len() - 1],
+        sorted[sorted.len() / 2]
+    ))
+}
+
 /// Runs of consecutive kept frames, as "a-b" frame-number ranges, for messages.
 pub fn ranges(frames: &[u64]) -> String {
     let mut out: Vec<String> = Vec::new();

@@ -357,28 +357,16 @@ fn run_check(a: &CheckArgs) -> Result<()> {
             "frames": c.frames,
         })
     );
-    let checked: Vec<f64> = c.frames.iter().filter_map(|f| f.shift_mm).collect();
+    let (checked, largest) = svbrdf_align::selfcheck::verified(&c.frames);
     say!(
         "self-check against the reference photo: {} of {} frames verified, largest median offset {:.2} mm",
-        checked.len(),
+        checked,
         c.frames.len(),
-        checked.iter().copied().fold(0.0, f64::max)
+        largest
     );
-    if !bad.is_empty() {
-        let mut off: Vec<f64> = c
-            .frames
-            .iter()
-            .filter(|f| f.inconsistent(c.limit_mm))
-            .filter_map(|f| f.shift_mm)
-            .collect();
-        off.sort_by(f64::total_cmp);
+    if let Some(what) = svbrdf_align::selfcheck::disagreement(&c.frames, c.limit_mm) {
         anyhow::bail!(
-            "frames {} ({} of {} checked) lie {:.1}-{:.1} mm from where the reference photo shows the same texture (expected at most {} mm): their mapping is wrong; align again, or drop them from capture.json",
-            svbrdf_align::selfcheck::ranges(&bad),
-            bad.len(),
-            checked.len(),
-            off[0],
-            off[off.len() - 1],
+            "{what} (expected at most {} mm): their mapping is wrong; align again, or drop them from capture.json",
             c.limit_mm
         );
     }
@@ -423,19 +411,18 @@ fn run_align(a: &AlignArgs) -> Result<()> {
             v.range_tag
                 .as_deref()
                 .unwrap_or("untagged (limited assumed)"),
-            v.decoded_with.to_uppercase().replace("BT", "BT.")
+            v.decoded_with.label()
         );
     }
     if let Some(t) = &s.second {
         say!("second video: {}", t.describe());
     }
-    let checked: Vec<f64> = s.self_check.iter().filter_map(|c| c.shift_mm).collect();
-    let worst = checked.iter().copied().fold(0.0, f64::max);
+    let (checked, worst) = svbrdf_align::selfcheck::verified(&s.self_check);
     say!(
         "coverage: {:.1}% of the region seen by at least {} kept frames; self-check against the reference photo: {} of {} frames verified, largest median offset {:.2} mm",
         100.0 * s.coverage,
         svbrdf_align::COVERAGE_VIEWS,
-        checked.len(),
+        checked,
         s.self_check.len(),
         worst
     );

@@ -183,13 +183,23 @@ pub fn probe_video(path: &Path) -> Result<VideoProbe, CvError> {
 }
 
 /// Which Y'CbCr matrix frames are decoded with.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum DecodingMatrix {
     /// BT.601: tagged so (`bt470bg`, `smpte170m`) or untagged (what FFmpeg assumes).
     Bt601,
     /// BT.709, as tagged (phones' SDR video).
     Bt709,
+}
+
+impl DecodingMatrix {
+    /// Its name for people (`BT.601`, `BT.709`).
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Bt601 => "BT.601",
+            Self::Bt709 => "BT.709",
+        }
+    }
 }
 
 impl VideoProbe {

@@ -265,8 +265,9 @@ pub struct VideoWriter {
     width: u32,
     height: u32,
     frames: u64,
-    /// For BT.709 output: the RGB pre-correction (OpenCV's encoder applies BT.601).
-    bt709: Option<svbrdf_core::geometry::Mat3>,
+    /// For BT.709 output: the pre-correction (BGR order) that makes OpenCV's BT.601
+    /// encoder store BT.709's Y'CbCr.
+    bt709: Option<Mat>,
 }
 
 impl VideoWriter {
@@ -311,10 +312,10 @@ impl VideoWriter {
     /// (as phones record SDR video): frames are stored with BT.709's Y'CbCr matrix.
     pub fn create_bt709(path: &Path, fps: f64, width: u32, height: u32) -> Result<Self, CvError> {
         let mut w = Self::create(path, fps, width, height)?;
-        w.bt709 = Some(svbrdf_core::color::ycbcr_matrix_fix(
+        w.bt709 = Some(bgr_matrix(&svbrdf_core::color::ycbcr_matrix_fix(
             YcbcrMatrix::BT601,
             YcbcrMatrix::BT709,
-        ));
+        ))?);
         Ok(w)
     }
 
@@ -327,25 +328,15 @@ impl VideoWriter {
                 expected: format!("{}x{} as the video was created", self.width, self.height),
             });
         }
-        let mat = match &self.bt709 {
-            None => rgb_to_mat(img)?,
-            Some(m) => {
-                // OpenCV converts with BT.601: hand it the R'G'B' whose BT.601 Y'CbCr
-                // is the BT.709 Y'CbCr of the frame (rounded; saturated colours clip).
-                let mut pre = img.clone();
-                for px in pre.data.chunks_exact_mut(3) {
-                    let v = m * svbrdf_core::geometry::Vec3::new(
-                        f64::from(px[0]),
-                        f64::from(px[1]),
-                        f64::from(px[2]),
-                    );
-                    for (o, v) in px.iter_mut().zip(v.iter()) {
-                        *o = v.round().clamp(0.0, 255.0) as u8;
-                    }
-                }
-                rgb_to_mat(&pre)?
-            }
-        };
+        let mut mat = rgb_to_mat(img)?;
+        if let Some(m) = &self.bt709 {
+            // OpenCV converts with BT.601: hand it the R'G'B' whose BT.601 Y'CbCr is the
+            // BT.709 Y'CbCr of the frame (rounded; saturated colours clip).
+            let mut pre = Mat::default();
+            opencv::core::transform(&mat, &mut pre, m)
+                .ctx(|| format!("converting colours for {}", self.path.display()))?;
+            mat = pre;
+        }
         self.writer
             .write(&mat)
             .ctx(|| format!("encoding {}", self.path.display()))?;

@@ -20,7 +20,7 @@ use svbrdf_core::CoreError;
 
 use crate::convert::{gltf_texel, GltfTexel, GLTF_DIELECTRIC_F0, WARD_TO_GGX_ALPHA};
 use crate::mesh::{quad, sphere, Mesh};
-use crate::{ExportConfig, ExportError, MaterialMaps};
+use crate::{ExportConfig, ExportError, MaterialMaps, COVERAGE_FILE, COVERAGE_MEANING};
 
 /// File name of the glTF document inside the export folder.
 pub const GLTF_FILE: &str = "material.gltf";
@@ -158,11 +158,6 @@ pub fn sphere_placement(maps: &MaterialMaps) -> (f64, [f64; 3]) {
     (r, [0.5 * w + 0.15 * w.min(h) + r, r, 0.0])
 }
 
-/// File name of the coverage map beside the textures (not a material texture).
-pub const COVERAGE_FILE: &str = "coverage.png";
-/// What the coverage map's values mean.
-pub const COVERAGE_MEANING: &str = "coverage (linear): 1 = seen by at least 3 frames (measured), 0.5 = by 1-2 frames, 0 = by none (BRDF filled from the nearest measured cluster, not measured)";
-
 /// Write the glTF export into the folder `out` and return the `.gltf` path.
 pub fn write(
     maps: &MaterialMaps,
@@ -189,18 +184,7 @@ pub fn write(
         }
         _ => false,
     };
-    if let Some(img) = maps.coverage_image() {
-        write_png(
-            &dir.join(COVERAGE_FILE),
-            &img,
-            Encoding::Linear,
-            PngDepth::Eight,
-            &[
-                ("map", COVERAGE_MEANING.to_string()),
-                ("encoding", "linear".into()),
-            ],
-        )?;
-    }
+    maps.write_coverage(dir)?;
     let texture_files: [(&str, &ImageF32, Encoding, &str); 5] = [
         ("base_color.png", &t.base_color, Encoding::Srgb, "glTF baseColor = rho_d / (1 - max F0)"),
         (

@@ -53,6 +53,11 @@ pub struct MaterialMaps {
 /// Observations a map pixel needs to count as measured (as the alignment's coverage).
 pub const MEASURED_VIEWS: u32 = 3;
 
+/// File name of the coverage map beside each export's files (not a material texture).
+pub const COVERAGE_FILE: &str = "coverage.png";
+/// What the coverage map's values mean.
+pub const COVERAGE_MEANING: &str = "coverage (linear): 1 = seen by at least 3 frames (measured), 0.5 = by 1-2 frames, 0 = by none (BRDF filled from the nearest measured cluster, not measured)";
+
 /// Shares of the map's pixels by how well they were observed.
 #[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
 pub struct CoverageShares {
@@ -75,6 +80,24 @@ impl MaterialMaps {
             thin: count(&|v| v > 0 && v < MEASURED_VIEWS),
             unobserved: count(&|v| v == 0),
         })
+    }
+
+    /// Write [`COVERAGE_FILE`] into `dir` where the coverage is known (both exports
+    /// carry it).
+    pub(crate) fn write_coverage(&self, dir: &Path) -> Result<(), ExportError> {
+        if let Some(img) = self.coverage_image() {
+            svbrdf_core::maps::write_png(
+                &dir.join(COVERAGE_FILE),
+                &img,
+                svbrdf_core::maps::Encoding::Linear,
+                svbrdf_core::maps::PngDepth::Eight,
+                &[
+                    ("map", COVERAGE_MEANING.to_string()),
+                    ("encoding", "linear".into()),
+                ],
+            )?;
+        }
+        Ok(())
     }
 
     /// The coverage as a linear grey image: 1 measured, 0.5 thin (1-2 frames), 0 not

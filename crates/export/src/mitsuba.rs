@@ -136,15 +136,7 @@ pub fn write(
     )?;
     // What was measured: the same coverage map as the glTF export's.
     let coverage = maps.coverage_shares();
-    if let Some(img) = maps.coverage_image() {
-        write_png(
-            &dir.join(crate::gltf::COVERAGE_FILE),
-            &img,
-            Encoding::Linear,
-            PngDepth::Eight,
-            &meta(crate::gltf::COVERAGE_MEANING),
-        )?;
-    }
+    maps.write_coverage(dir)?;
 
     let region = maps.grid.region;
     let centre = [

@@ -367,8 +367,9 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
             rows.push((
                 "coverage".into(),
                 format!(
-                    "{:.1}% of the region seen by at least 3 registered frames",
-                    100.0 * c
+                    "{:.1}% of the region seen by at least {} registered frames",
+                    100.0 * c,
+                    crate::MEASURED_VIEWS
                 ),
             ));
         }
