@@ -115,6 +115,7 @@ fn one(a: &EvalArgs, holdout: Vec<u32>, out: &Path, diffuse_only: bool) -> Resul
         grid: fitted.grid,
         params: fitted.params,
         coverage: fitted.coverage,
+        confidence: fitted.confidence,
     };
     svbrdf_export::report::write_report(&out, Some(&maps))?;
     say!(

@@ -150,6 +150,9 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
         s.rmse_final,
         100.0 * worst
     );
+    if let Some(c) = &s.confidence {
+        say!("confidence (maps/confidence.png): {}", c.sentence());
+    }
     crate::print_timings(&s.timings);
     crate::print_warnings(&s.warnings);
     Ok(run)

@@ -109,6 +109,11 @@ struct SynthArgs {
     /// Farthest camera height, cm (>= --distance-min).
     #[arg(long)]
     distance_max: Option<f64>,
+    /// How far the sweep reaches towards the region's edges, as a fraction of its
+    /// half-size, in (0, 1.5] (1: the camera passes over the corners; smaller leaves
+    /// the edges seen only obliquely).
+    #[arg(long)]
+    reach: Option<f64>,
     /// Also render a second, no-flash camera at an oblique angle (paper section 3.3).
     #[arg(long)]
     second_camera: bool,
@@ -478,6 +483,9 @@ fn synth_config(a: &SynthArgs) -> Result<SynthConfig> {
     }
     if let Some(v) = a.distance_max {
         c.sweep.distance_max_cm = v;
+    }
+    if let Some(v) = a.reach {
+        c.sweep.reach = v;
     }
     if a.second_camera {
         c.second_camera = Some(c.default_second_camera());

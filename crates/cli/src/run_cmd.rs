@@ -108,6 +108,7 @@ pub fn load_fit(dir: &Path) -> Result<(MaterialMaps, [f64; 3])> {
         grid: m.grid,
         params: m.params,
         coverage: m.coverage,
+        confidence: m.confidence,
     };
     Ok((maps, m.manifest.summary.light_intensity))
 }

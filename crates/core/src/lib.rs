@@ -20,6 +20,7 @@ pub mod brdf;
 pub mod camera_description;
 pub mod capture;
 pub mod color;
+pub mod confidence;
 mod error;
 pub mod fsutil;
 pub mod geometry;

@@ -185,6 +185,7 @@ pub fn write(
         _ => false,
     };
     maps.write_coverage(dir)?;
+    maps.write_confidence(dir)?;
     let texture_files: [(&str, &ImageF32, Encoding, &str); 5] = [
         ("base_color.png", &t.base_color, Encoding::Srgb, "glTF baseColor = rho_d / (1 - max F0)"),
         (
@@ -308,6 +309,19 @@ pub fn write(
             "unobserved_masked": masked,
         });
     }
+    if let Some(c) = &maps.confidence {
+        let s = &c.summary;
+        doc["asset"]["extras"]["svbrdf"]["confidence"] = json!({
+            "file": svbrdf_core::confidence::CONFIDENCE_FILE,
+            "meaning": svbrdf_core::confidence::CONFIDENCE_MEANING,
+            "specular_peak_share": s.specular_peak,
+            "specular_flank_share": s.specular_flank,
+            "specular_unseen_share": s.specular_unseen,
+            "normal_low_share": s.normal_low,
+            "diffuse_low_share": s.diffuse_low,
+            "summary": s.sentence(),
+        });
+    }
     svbrdf_core::fsutil::write_json(&dir.join(GLTF_FILE), &doc)?;
     let target = staging.commit()?;
     Ok(target.join(GLTF_FILE))
@@ -344,6 +358,7 @@ pub(crate) mod tests {
             grid,
             params,
             coverage: None,
+            confidence: None,
         }
     }
 

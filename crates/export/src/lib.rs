@@ -48,6 +48,9 @@ pub struct MaterialMaps {
     /// Observations per pixel (frames that saw it; 0: not seen, its BRDF was filled
     /// from the nearest measured cluster), where known.
     pub coverage: Option<Vec<u32>>,
+    /// How well each pixel's diffuse albedo, specular lobe and normal were measured,
+    /// where known.
+    pub confidence: Option<svbrdf_core::confidence::ConfidenceMap>,
 }
 
 /// Observations a map pixel needs to count as measured (as the alignment's coverage).
@@ -100,6 +103,15 @@ impl MaterialMaps {
         Ok(())
     }
 
+    /// Write the confidence map ([`svbrdf_core::confidence::CONFIDENCE_FILE`]) into
+    /// `dir` where it is known (both exports carry it).
+    pub(crate) fn write_confidence(&self, dir: &Path) -> Result<(), ExportError> {
+        if let Some(c) = &self.confidence {
+            c.write_png(dir, self.grid.width, self.grid.height)?;
+        }
+        Ok(())
+    }
+
     /// The coverage as a linear grey image: 1 measured, 0.5 thin (1-2 frames), 0 not
     /// seen (filled).
     pub fn coverage_image(&self) -> Option<svbrdf_core::image::ImageF32> {
@@ -141,6 +153,18 @@ impl MaterialMaps {
                 "finite parameters",
             )
             .into());
+        }
+        if let Some(c) = &self.confidence {
+            if c.per_pixel.len() != self.params.len()
+                || c.per_pixel.iter().flatten().any(|v| !(0.0..=1.0).contains(v))
+            {
+                return Err(CoreError::invalid(
+                    "confidence map",
+                    format!("{} pixels", c.per_pixel.len()),
+                    format!("{} pixels, as the maps, each in [0, 1]", self.params.len()),
+                )
+                .into());
+            }
         }
         if let Some(c) = &self.coverage {
             if c.len() != self.params.len() {

@@ -137,6 +137,7 @@ pub fn write(
     // What was measured: the same coverage map as the glTF export's.
     let coverage = maps.coverage_shares();
     maps.write_coverage(dir)?;
+    maps.write_confidence(dir)?;
 
     let region = maps.grid.region;
     let centre = [
@@ -206,6 +207,14 @@ pub fn write(
             crate::MEASURED_VIEWS,
             100.0 * c.thin,
             100.0 * c.unobserved
+        );
+    }
+    if let Some(c) = &maps.confidence {
+        let _ = writeln!(
+            xml,
+            "<!-- {}: {} -->",
+            svbrdf_core::confidence::CONFIDENCE_FILE,
+            c.summary.sentence().replace("--", "-")
         );
     }
     let _ = writeln!(xml, r#"<scene version="3.0.0">"#);

@@ -130,6 +130,52 @@ pub fn write_renders(
 /// `None` where the coverage is unknown.
 pub fn measured_picture(maps: &MaterialMaps) -> Option<ImageF32> {
     let c = maps.coverage.as_ref()?;
+    Some(hatched(
+        maps,
+        [1.0, 0.0, 1.0],
+        |i| match c[i] {
+            0 => Hatch::Dense,
+            v if v < crate::MEASURED_VIEWS => Hatch::Sparse,
+            _ => Hatch::None,
+        },
+        |i| c[i] == 0,
+    ))
+}
+
+/// The diffuse albedo with the pixels whose highlight was never seen hatched in cyan
+/// (densely) and those where only its flank or a clipped peak was seen (sparsely):
+/// where the gloss was measured and where it is a guess. `None` where the confidence
+/// is unknown.
+pub fn gloss_picture(maps: &MaterialMaps) -> Option<ImageF32> {
+    let c = maps.confidence.as_ref()?;
+    Some(hatched(
+        maps,
+        [0.0, 1.0, 1.0],
+        |i| match c.per_pixel[i][1] {
+            v if v <= 0.0 => Hatch::Dense,
+            v if v < 1.0 => Hatch::Sparse,
+            _ => Hatch::None,
+        },
+        |_| false,
+    ))
+}
+
+/// How densely a pixel is hatched.
+#[derive(Clone, Copy, PartialEq)]
+enum Hatch {
+    None,
+    Sparse,
+    Dense,
+}
+
+/// The diffuse albedo (linear) with diagonal stripes of `colour` where `hatch` says,
+/// darkened where `dark` says.
+fn hatched(
+    maps: &MaterialMaps,
+    colour: [f32; 3],
+    hatch: impl Fn(usize) -> Hatch,
+    dark: impl Fn(usize) -> bool,
+) -> ImageF32 {
     let (w, h) = (maps.grid.width, maps.grid.height);
     // Stripes about 1/80 of the map's long side apart, at least 4 pixels.
     let period = (w.max(h) / 80).max(4);
@@ -137,21 +183,21 @@ pub fn measured_picture(maps: &MaterialMaps) -> Option<ImageF32> {
     for (i, p) in maps.params.iter().enumerate() {
         let (x, y) = (i % w, i / w);
         let stripe = (x + y) % period < period.div_ceil(3);
-        let hatch = match c[i] {
-            0 => stripe,
-            v if v < crate::MEASURED_VIEWS => stripe && ((x + y) / period) % 3 == 0,
-            _ => false,
+        let on = match hatch(i) {
+            Hatch::Dense => stripe,
+            Hatch::Sparse => stripe && ((x + y) / period) % 3 == 0,
+            Hatch::None => false,
         };
-        let px = if hatch {
-            [1.0, 0.0, 1.0]
-        } else if c[i] == 0 {
+        let px = if on {
+            colour
+        } else if dark(i) {
             p.rho_d.map(|v| (0.35 * v) as f32)
         } else {
             p.rho_d.map(|v| v as f32)
         };
         img.data[3 * i..3 * i + 3].copy_from_slice(&px);
     }
-    Some(img)
+    img
 }
 
 /// One sentence on what the capture measured, for people.
@@ -482,6 +528,34 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
             &[(
                 p,
                 "diffuse albedo (sRGB); magenta stripes mark parts not measured".into(),
+            )],
+            false,
+        )?;
+        page.end();
+    }
+
+    // Where the gloss was measured and where it is a guess.
+    if let Some((c, img)) = maps.and_then(|m| Some((m.confidence.as_ref()?, gloss_picture(m)?))) {
+        let p = dir.join("renders/gloss_measured.png");
+        save(
+            &p,
+            &img,
+            "diffuse albedo; cyan stripes: highlight never seen (dense) or only its flank or clipped (sparse)",
+        )?;
+        page.section(
+            "confidence",
+            "Where the gloss was measured",
+            &escape(&format!(
+                "{} Dense cyan stripes: the highlight was never seen there; sparse: only its flank or a clipped peak. The exports carry the full confidence map ({}: {}).",
+                c.summary.sentence(),
+                svbrdf_core::confidence::CONFIDENCE_FILE,
+                svbrdf_core::confidence::CONFIDENCE_MEANING
+            )),
+        );
+        page.figures(
+            &[(
+                p,
+                "diffuse albedo (sRGB); cyan stripes mark parts whose gloss is a guess".into(),
             )],
             false,
         )?;

@@ -16,6 +16,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod cluster;
+pub mod confidence;
 pub mod config;
 pub mod evaluate;
 pub mod fast;
@@ -189,6 +190,10 @@ pub fn output_grid(capture: &RegisteredCapture, cfg: &FitConfig) -> Result<Plane
     Ok(PlaneGrid::new(capture.region, px_per_cm)?)
 }
 
+/// Above this share of the observed surface whose highlight was never seen, the fit
+/// warns.
+pub const SPECULAR_UNSEEN_WARNING: f64 = 0.25;
+
 /// Largest output grid, pixels (a 20 x 20 cm region at 1000 px/cm).
 pub const MAX_GRID_PIXELS: f64 = 4.0e8;
 
@@ -231,6 +236,9 @@ pub struct FittedMaps {
     pub average: Vec<[f64; 3]>,
     /// RMS re-rendering error per pixel (linear radiance).
     pub residual: Vec<f32>,
+    /// Confidence per pixel in [0, 1]: diffuse, specular lobe, normal (see
+    /// [`confidence`]).
+    pub confidence: Vec<[f32; 3]>,
     /// The final clusters, indexed by the ids in `cluster`.
     pub clusters: Vec<ClusterInfo>,
 }
@@ -322,6 +330,10 @@ pub struct FitSummary {
     pub rmse_final: f64,
     /// Re-rendering error per input frame.
     pub frames: Vec<render::FrameError>,
+    /// What the confidence maps say (see [`confidence`]); absent in fits written
+    /// before they existed.
+    #[serde(default)]
+    pub confidence: Option<confidence::ConfidenceSummary>,
     /// Seconds per step.
     pub timings: Vec<(String, f64)>,
 }
@@ -696,7 +708,16 @@ pub fn fit(
     let rmse_final = (sse / (3 * n.max(1)) as f64).sqrt();
 
     let coverage = (0..npx).map(|p| obs.count(p) as u32).collect();
+    let t = Instant::now();
+    let (confidence, confidence_summary) = confidence::confidence(obs, &params);
+    timings.push(("confidence".to_string(), t.elapsed().as_secs_f64()));
     let mut warnings = Vec::new();
+    if confidence_summary.specular_unseen > SPECULAR_UNSEEN_WARNING {
+        warnings.push(format!(
+            "the highlight was never seen on {:.0}% of the surface: their gloss is copied from similar regions, not measured (see maps/confidence.png, green channel); sweep the phone over those parts too",
+            100.0 * confidence_summary.specular_unseen
+        ));
+    }
     let unseen = npx - covered_px.len();
     if unseen * 20 > npx {
         warnings.push(format!(
@@ -734,6 +755,7 @@ pub fn fit(
         rmse_final,
         frames,
         timings,
+        confidence: Some(confidence_summary),
     };
     Ok((
         FittedMaps {
@@ -743,6 +765,7 @@ pub fn fit(
             coverage,
             average,
             residual,
+            confidence,
             clusters: leaves
                 .iter()
                 .enumerate()

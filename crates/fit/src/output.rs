@@ -11,6 +11,7 @@
 //! OUT/maps/initial_clusters.png  the initial k-means clusters in random colours (sRGB)
 //! OUT/maps/residual.exr   RMS re-rendering error per pixel, linear (+ .png, linear 16-bit, x10)
 //! OUT/maps/coverage.exr   observations per pixel (0: filled)      (+ .png, 8-bit, 0 black)
+//! OUT/maps/confidence.exr R = diffuse, G = specular, B = normal confidence in [0, 1], linear (+ .png, linear 8-bit)
 //! OUT/rerender.png        observed frames (top) over their re-rendering (bottom), sRGB
 //! OUT/clusters.json       every final cluster: id, pixels, depth, BRDF, RMS error
 //! ```
@@ -239,6 +240,14 @@ pub fn write_outputs(
         "observations per pixel (0: BRDF filled from the nearest observed cluster)",
         1.0 / max_cov,
     );
+    put(
+        "confidence",
+        plane(maps, |i| maps.confidence[i]),
+        Encoding::Linear,
+        PngDepth::Eight,
+        svbrdf_core::confidence::CONFIDENCE_MEANING,
+        1.0,
+    );
     // Clusters: ids in the EXR, random but fixed colours in the PNG.
     let n = maps.cluster.iter().copied().max().unwrap_or(0) as usize + 1;
     let mut rng = ChaCha8Rng::seed_from_u64(0x5eed);
@@ -363,6 +372,9 @@ pub struct LoadedMaps {
     pub params: Vec<svbrdf_core::brdf::BrdfParams>,
     /// Observations per pixel (`maps/coverage.exr`), where the folder has it.
     pub coverage: Option<Vec<u32>>,
+    /// Confidence per pixel (`maps/confidence.exr`: diffuse, specular, normal) and
+    /// its summary from `fit.json`, where the folder has them.
+    pub confidence: Option<svbrdf_core::confidence::ConfidenceMap>,
 }
 
 /// The parameters of pixel `i` from the four maps as `fit` writes them: diffuse and
@@ -444,10 +456,35 @@ pub fn read_maps(dir: &Path) -> Result<LoadedMaps, FitError> {
     } else {
         None
     };
+    let confidence = match (
+        dir.join("maps/confidence.exr").exists(),
+        manifest.summary.confidence,
+    ) {
+        (true, Some(summary)) => {
+            let c = read("confidence")?;
+            if c.channels < 3 {
+                return Err(svbrdf_core::CoreError::format(
+                    &dir.join("maps/confidence.exr"),
+                    format!("{} channels (expected 3: diffuse, specular, normal)", c.channels),
+                )
+                .into());
+            }
+            Some(svbrdf_core::confidence::ConfidenceMap {
+                per_pixel: c
+                    .data
+                    .chunks(c.channels)
+                    .map(|p| [p[0], p[1], p[2]])
+                    .collect(),
+                summary,
+            })
+        }
+        _ => None,
+    };
     Ok(LoadedMaps {
         manifest,
         grid,
         params,
         coverage,
+        confidence,
     })
 }

@@ -44,6 +44,7 @@ fn fit_writes_complete_self_describing_maps() {
         "average",
         "residual",
         "coverage",
+        "confidence",
         "clusters",
     ] {
         for ext in ["exr", "png"] {
@@ -253,4 +254,70 @@ fn fit_with_ggx_writes_ggx_maps() {
     // The GGX fit explains the (Ward-rendered) video about as well as Ward does.
     let rmse = m["summary"]["rmse_final"].as_f64().unwrap();
     assert!(rmse.is_finite() && rmse < 0.1, "rmse {rmse}");
+}
+
+/// Issue 19: a sweep that never passes over the region's edges sees their highlight
+/// only obliquely; the confidence map says their gloss is a guess there and measured
+/// under the sweep, and the fit warns.
+#[test]
+fn a_sweep_that_never_passes_over_the_edges_leaves_their_gloss_unmeasured() {
+    let dir = temp_dir();
+    let cap = dir.join("narrow");
+    let o = svbrdf(&[
+        "synth",
+        "--preset",
+        "tiny",
+        "--material",
+        "tiles",
+        "--reach",
+        "0.25",
+        "--out",
+        cap.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let out = dir.join("fit");
+    let o = svbrdf(&[
+        "fit",
+        "--capture",
+        cap.join("registered").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("the highlight was never seen on"),
+        "{}",
+        stderr(&o)
+    );
+    let m: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("fit.json")).unwrap()).unwrap();
+    let unseen = m["summary"]["confidence"]["specular_unseen"].as_f64().unwrap();
+    assert!(unseen > 0.25, "{}", m["summary"]["confidence"]);
+    let img = svbrdf_core::maps::read_image_linear(
+        &out.join("maps/confidence.exr"),
+        svbrdf_core::maps::Encoding::Linear,
+    )
+    .unwrap();
+    let (w, h) = (img.width, img.height);
+    // Share of pixels whose highlight was never seen (specular confidence 0), in the
+    // centre (under the sweep) and along the edges.
+    let (mut centre, mut edge) = ((0, 0), (0, 0));
+    for y in 0..h {
+        for x in 0..w {
+            let unseen = usize::from(img.data[(y * w + x) * img.channels + 1] <= 0.0);
+            let (u, v) = (x as f64 / w as f64 - 0.5, y as f64 / h as f64 - 0.5);
+            let r = u.abs().max(v.abs());
+            if r < 0.15 {
+                centre = (centre.0 + unseen, centre.1 + 1);
+            } else if r > 0.4 {
+                edge = (edge.0 + unseen, edge.1 + 1);
+            }
+        }
+    }
+    let share = |c: (usize, usize)| c.0 as f64 / c.1.max(1) as f64;
+    let (centre, edge) = (share(centre), share(edge));
+    assert!(
+        centre < 0.25 && edge > 0.5 && edge > 3.0 * centre,
+        "highlight never seen: centre {centre:.2}, edges {edge:.2}"
+    );
 }

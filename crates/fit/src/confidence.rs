@@ -1,0 +1,236 @@
+//! What each pixel's observations can tell about its parameters: a confidence per
+//! parameter group (diffuse albedo, specular lobe, normal), each in [0, 1].
+//!
+//! - **Diffuse**: the number of frames that saw the pixel; full at
+//!   [`DIFFUSE_FULL_VIEWS`] (the diffuse albedo is a mean over views, so its noise falls
+//!   with their number).
+//! - **Specular**: whether the highlight's peak was seen. For each observation the
+//!   half-vector's offset from the fitted normal is measured in lobe widths (`e`, the
+//!   Ward exponent `tan^2 theta_h (cos^2 phi / alpha_x^2 + sin^2 phi / alpha_y^2)`:
+//!   `e < 1` is within one lobe width of the mirror direction, where the lobe is above
+//!   37% of its peak). [`SPECULAR_PEAK`] (1) where at least [`PEAK_VIEWS`] unclipped
+//!   observations lie within one width; [`SPECULAR_FLANK`] (0.5) where the peak was
+//!   seen only clipped (the lobe's height is then a lower bound) or at least
+//!   [`PEAK_VIEWS`] observations lie within two widths (its flank: the height is an
+//!   extrapolation); 0 where neither: the highlight was never seen, and the pixel's
+//!   lobe is its cluster's, fitted on other pixels.
+//! - **Normal**: the spread of the directions the light came from. A normal is read
+//!   from how shading changes with the light direction, so it needs light from
+//!   different sides: the smaller standard deviation of the unit light vector's plane
+//!   components (the covariance's smaller eigenvalue), full at
+//!   [`NORMAL_FULL_SPREAD`]; 0 below [`MIN_VIEWS`] frames.
+//!
+//! The specular lobe is never fitted per pixel (the refinement moves the diffuse
+//! albedo and the normal only), so a pixel whose highlight was never seen carries its
+//! cluster's lobe; the confidence says so.
+
+use rayon::prelude::*;
+use svbrdf_core::brdf::{BrdfParams, ShadingFrame};
+
+use crate::observations::Observations;
+
+pub use svbrdf_core::confidence::{ConfidenceSummary, DIFFUSE_FULL_VIEWS};
+/// Frames a pixel needs for any normal or specular confidence.
+pub const MIN_VIEWS: usize = 3;
+/// Observations within one (unclipped) or two lobe widths a pixel needs.
+pub const PEAK_VIEWS: usize = 2;
+/// Specular confidence where the peak was seen unclipped.
+pub const SPECULAR_PEAK: f32 = 1.0;
+/// Specular confidence where only the flank or a clipped peak was seen.
+pub const SPECULAR_FLANK: f32 = 0.5;
+/// Standard deviation of the light direction's plane components (in the direction
+/// where it is smallest) at which the normal confidence is full (0.15: about 9 degrees).
+pub const NORMAL_FULL_SPREAD: f64 = 0.15;
+
+/// Channel order of the confidence maps.
+pub const CHANNELS: [&str; 3] = ["diffuse", "specular", "normal"];
+
+/// Per-pixel confidences (`[diffuse, specular, normal]`, row-major like the maps) and
+/// their summary. `params` are the final per-pixel parameters.
+pub fn confidence(
+    obs: &Observations,
+    params: &[BrdfParams],
+) -> (Vec<[f32; 3]>, ConfidenceSummary) {
+    let per_pixel: Vec<[f32; 3]> = (0..obs.pixels())
+        .into_par_iter()
+        .map(|p| pixel_confidence(obs, p, &params[p]))
+        .collect();
+    let observed: Vec<&[f32; 3]> = per_pixel
+        .iter()
+        .enumerate()
+        .filter(|(p, _)| obs.count(*p) > 0)
+        .map(|(_, c)| c)
+        .collect();
+    let n = observed.len().max(1) as f64;
+    let share = |f: &dyn Fn(&[f32; 3]) -> bool| observed.iter().filter(|c| f(c)).count() as f64 / n;
+    let summary = ConfidenceSummary {
+        observed_pixels: observed.len(),
+        diffuse_low: share(&|c| c[0] < 0.5),
+        specular_peak: share(&|c| c[1] >= SPECULAR_PEAK),
+        specular_flank: share(&|c| c[1] > 0.0 && c[1] < SPECULAR_PEAK),
+        specular_unseen: share(&|c| c[1] <= 0.0),
+        normal_low: share(&|c| c[2] < 0.5),
+    };
+    (per_pixel, summary)
+}
+
+/// Confidences of one pixel.
+fn pixel_confidence(obs: &Observations, p: usize, params: &BrdfParams) -> [f32; 3] {
+    let range = obs.range(p);
+    let n = range.len();
+    if n == 0 {
+        return [0.0; 3];
+    }
+    let diffuse = (n as f64 / DIFFUSE_FULL_VIEWS as f64).min(1.0) as f32;
+    if n < MIN_VIEWS {
+        return [diffuse, 0.0, 0.0];
+    }
+    let frame = ShadingFrame::new(params.normal_theta_x, params.normal_theta_y);
+    let (ax, ay) = (params.alpha_x.max(1e-4), params.alpha_y.max(1e-4));
+    let (mut peak, mut peak_clipped, mut flank) = (0usize, 0usize, 0usize);
+    let (mut sx, mut sy, mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for o in range {
+        let lv = obs.light_view(p, o);
+        let (l, x, y) = (lv.light, lv.light.x, lv.light.y);
+        sx += x;
+        sy += y;
+        sxx += x * x;
+        syy += y * y;
+        sxy += x * y;
+        let h = l + lv.view;
+        let (hn, ht, hb) = (h.dot(&frame.n), h.dot(&frame.t), h.dot(&frame.b));
+        if hn <= 1e-9 {
+            continue;
+        }
+        let e = (ht / hn / ax).powi(2) + (hb / hn / ay).powi(2);
+        if e < 1.0 {
+            if obs.clipped(o).iter().any(|&c| c) {
+                peak_clipped += 1;
+            } else {
+                peak += 1;
+            }
+        }
+        if e < 4.0 {
+            flank += 1;
+        }
+    }
+    let specular = if peak >= PEAK_VIEWS {
+        SPECULAR_PEAK
+    } else if peak + peak_clipped > 0 || flank >= PEAK_VIEWS {
+        SPECULAR_FLANK
+    } else {
+        0.0
+    };
+    let m = n as f64;
+    let (cxx, cyy, cxy) = (
+        sxx / m - (sx / m).powi(2),
+        syy / m - (sy / m).powi(2),
+        sxy / m - (sx / m) * (sy / m),
+    );
+    // Smaller eigenvalue of the 2x2 covariance.
+    let half_trace = 0.5 * (cxx + cyy);
+    let lambda_min = half_trace - (0.25 * (cxx - cyy).powi(2) + cxy * cxy).sqrt();
+    let normal = (lambda_min.max(0.0).sqrt() / NORMAL_FULL_SPREAD).min(1.0) as f32;
+    [diffuse, specular, normal]
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::observations::{rendered, FrameGeometry};
+    use svbrdf_core::geometry::Vec3;
+    use svbrdf_core::plane::{PlaneGrid, Region};
+
+    /// A glossy material on a 16 x 4 cm strip; the flash camera sweeps over the left
+    /// half only (x from -7 to -1 cm), at 8-12 cm.
+    fn left_sweep() -> Observations {
+        let grid = PlaneGrid::new(Region::centred(16.0, 4.0), 2.0).unwrap();
+        let mut frames = Vec::new();
+        for i in 0..40u32 {
+            let x = -7.0 + 6.0 * f64::from(i % 10) / 9.0;
+            let y = -1.5 + f64::from(i / 10);
+            let camera = Vec3::new(x, y, 8.0 + f64::from(i % 3) * 2.0);
+            frames.push(FrameGeometry {
+                id: i,
+                camera,
+                light: camera + Vec3::new(1.4, -0.3, 0.0),
+            });
+        }
+        rendered(
+            grid,
+            frames,
+            |_| BrdfParams {
+                rho_d: [0.2; 3],
+                rho_s: [0.03; 3],
+                alpha_x: 0.08,
+                alpha_y: 0.08,
+                ..BrdfParams::default()
+            },
+            100.0,
+            false,
+        )
+    }
+
+    #[test]
+    fn a_region_whose_mirror_direction_was_never_visited_has_no_specular_confidence() {
+        let obs = left_sweep();
+        let params = vec![
+            BrdfParams {
+                alpha_x: 0.08,
+                alpha_y: 0.08,
+                ..BrdfParams::default()
+            };
+            obs.pixels()
+        ];
+        let (conf, summary) = confidence(&obs, &params);
+        let w = obs.grid.width;
+        let at = |x_cm: f64| {
+            let col = ((x_cm + 8.0) * 2.0) as usize;
+            conf[(obs.grid.height / 2) * w + col]
+        };
+        // Under the sweep: the highlight's peak was seen; every frame saw the pixel.
+        let under = at(-4.0);
+        assert_eq!(under[1], SPECULAR_PEAK, "{under:?}");
+        assert_eq!(under[0], 1.0);
+        // Far right (7 cm from the nearest camera position): seen, never near the
+        // mirror direction.
+        let far = at(7.5);
+        assert!(far[0] > 0.0, "{far:?}");
+        assert_eq!(far[1], 0.0, "{far:?}");
+        assert!(summary.specular_unseen > 0.2, "{summary:?}");
+        assert!(summary.specular_peak > 0.2, "{summary:?}");
+        assert!(summary.sentence().contains("never seen"), "{}", summary.sentence());
+    }
+
+    #[test]
+    fn a_normal_lit_from_one_side_only_has_low_confidence() {
+        let obs = left_sweep();
+        let params = vec![BrdfParams::default(); obs.pixels()];
+        let (conf, _) = confidence(&obs, &params);
+        let w = obs.grid.width;
+        let row = obs.grid.height / 2;
+        let under = conf[row * w + 8];
+        let far = conf[row * w + w - 1];
+        // Under the sweep the light comes from all sides; at the far end it always
+        // comes from the left, in a narrow cone.
+        assert!(under[2] > 0.5, "{under:?}");
+        assert!(far[2] < under[2], "{far:?} vs {under:?}");
+    }
+
+    #[test]
+    fn unobserved_pixels_have_no_confidence() {
+        let mut obs = left_sweep();
+        // Drop every observation of pixel 0.
+        let n0 = obs.count(0);
+        obs.frame.drain(0..n0);
+        obs.rgb.drain(0..n0);
+        obs.key.drain(0..n0);
+        for s in obs.start.iter_mut().skip(1) {
+            *s -= n0;
+        }
+        let params = vec![BrdfParams::default(); obs.pixels()];
+        let (conf, summary) = confidence(&obs, &params);
+        assert_eq!(conf[0], [0.0; 3]);
+        assert_eq!(summary.observed_pixels, obs.pixels() - 1);
+    }
+}
