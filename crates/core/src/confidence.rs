@@ -69,7 +69,6 @@ impl ConfidenceSummary {
     }
 }
 
-
 /// A confidence map with its summary, as the exports and the report carry it.
 #[derive(Debug, Clone, PartialEq)]
 pub struct ConfidenceMap {
@@ -91,7 +90,12 @@ impl ConfidenceMap {
     }
 
     /// Write it as [`CONFIDENCE_FILE`] (linear 8-bit PNG) into `dir`.
-    pub fn write_png(&self, dir: &std::path::Path, width: usize, height: usize) -> Result<(), crate::CoreError> {
+    pub fn write_png(
+        &self,
+        dir: &std::path::Path,
+        width: usize,
+        height: usize,
+    ) -> Result<(), crate::CoreError> {
         crate::maps::write_png(
             &dir.join(CONFIDENCE_FILE),
             &self.image(width, height),

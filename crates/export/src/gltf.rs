@@ -416,6 +416,59 @@ pub(crate) mod tests {
         }
     }
 
+    #[test]
+    fn the_confidence_map_and_its_summary_travel_with_the_export() {
+        let tmp = tempfile::tempdir().expect("tmp");
+        let mut maps = checker(ModelKind::Ward);
+        let n = maps.params.len();
+        let per_pixel: Vec<[f32; 3]> = (0..n)
+            .map(|i| [1.0, [0.0, 0.5, 1.0][i % 3], 0.25])
+            .collect();
+        let summary = svbrdf_core::confidence::ConfidenceSummary {
+            observed_pixels: n,
+            specular_unseen: 0.4,
+            specular_flank: 0.3,
+            specular_peak: 0.3,
+            ..Default::default()
+        };
+        maps.confidence = Some(svbrdf_core::confidence::ConfidenceMap {
+            per_pixel: per_pixel.clone(),
+            summary,
+        });
+        let dir = tmp.path().join("out");
+        let path = write(&maps, &ExportConfig::default(), &dir, false).expect("export");
+        let doc: Value =
+            serde_json::from_str(&std::fs::read_to_string(&path).expect("read")).expect("json");
+        let c = &doc["asset"]["extras"]["svbrdf"]["confidence"];
+        assert_eq!(c["specular_unseen_share"], json!(0.4), "{c}");
+        assert!(
+            c["summary"]
+                .as_str()
+                .expect("sentence")
+                .contains("never seen"),
+            "{c}"
+        );
+        let img = svbrdf_core::maps::read_image_linear(
+            &dir.join(svbrdf_core::confidence::CONFIDENCE_FILE),
+            Encoding::Linear,
+        )
+        .expect("confidence.png");
+        for (k, v) in per_pixel.iter().enumerate() {
+            for (got, want) in img.data[3 * k..3 * k + 3].iter().zip(v) {
+                assert!((got - want).abs() < 0.01, "pixel {k}");
+            }
+        }
+        // An out-of-range confidence is refused, not written.
+        maps.confidence.as_mut().expect("set").per_pixel[0][1] = 1.5;
+        assert!(write(
+            &maps,
+            &ExportConfig::default(),
+            &tmp.path().join("bad"),
+            false
+        )
+        .is_err());
+    }
+
     /// The document for a fixed small material, compared with a checked-in golden
     /// file (regenerate with `SVBRDF_UPDATE_GOLDEN=1` after an intended change, and
     /// review the diff).

@@ -156,7 +156,10 @@ impl MaterialMaps {
         }
         if let Some(c) = &self.confidence {
             if c.per_pixel.len() != self.params.len()
-                || c.per_pixel.iter().flatten().any(|v| !(0.0..=1.0).contains(v))
+                || c.per_pixel
+                    .iter()
+                    .flatten()
+                    .any(|v| !(0.0..=1.0).contains(v))
             {
                 return Err(CoreError::invalid(
                     "confidence map",

@@ -889,4 +889,32 @@ mod tests {
             .expect("sentence")
             .contains("all of it is measured"));
     }
+
+    #[test]
+    fn parts_whose_highlight_was_never_seen_are_hatched_and_said() {
+        let tmp = tempfile::tempdir().expect("tmp");
+        let mut maps = crate::gltf::tests::checker(svbrdf_core::brdf::ModelKind::Ward);
+        let (w, n) = (maps.grid.width, maps.params.len());
+        assert!(gloss_picture(&maps).is_none());
+        // The top rows' highlight never seen, the rest seen at its peak.
+        maps.confidence = Some(svbrdf_core::confidence::ConfidenceMap {
+            per_pixel: (0..n)
+                .map(|i| [1.0, if i < 4 * w { 0.0 } else { 1.0 }, 1.0])
+                .collect(),
+            summary: svbrdf_core::confidence::ConfidenceSummary {
+                observed_pixels: n,
+                specular_peak: 0.7,
+                specular_unseen: 0.3,
+                ..Default::default()
+            },
+        });
+        let img = gloss_picture(&maps).expect("picture");
+        let cyan = |i: usize| img.data[3 * i..3 * i + 3] == [0.0, 1.0, 1.0];
+        assert!((0..4 * w).any(cyan));
+        assert!(!(4 * w..n).any(cyan));
+        let p = write_report(tmp.path(), Some(&maps)).expect("report");
+        let html = std::fs::read_to_string(p).expect("read");
+        assert!(html.contains("Where the gloss was measured"), "no section");
+        assert!(html.contains("their gloss is a guess from similar regions"));
+    }
 }

@@ -47,10 +47,7 @@ pub const CHANNELS: [&str; 3] = ["diffuse", "specular", "normal"];
 
 /// Per-pixel confidences (`[diffuse, specular, normal]`, row-major like the maps) and
 /// their summary. `params` are the final per-pixel parameters.
-pub fn confidence(
-    obs: &Observations,
-    params: &[BrdfParams],
-) -> (Vec<[f32; 3]>, ConfidenceSummary) {
+pub fn confidence(obs: &Observations, params: &[BrdfParams]) -> (Vec<[f32; 3]>, ConfidenceSummary) {
     let per_pixel: Vec<[f32; 3]> = (0..obs.pixels())
         .into_par_iter()
         .map(|p| pixel_confidence(obs, p, &params[p]))
@@ -199,7 +196,11 @@ mod tests {
         assert_eq!(far[1], 0.0, "{far:?}");
         assert!(summary.specular_unseen > 0.2, "{summary:?}");
         assert!(summary.specular_peak > 0.2, "{summary:?}");
-        assert!(summary.sentence().contains("never seen"), "{}", summary.sentence());
+        assert!(
+            summary.sentence().contains("never seen"),
+            "{}",
+            summary.sentence()
+        );
     }
 
     #[test]

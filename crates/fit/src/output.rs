@@ -464,8 +464,11 @@ pub fn read_maps(dir: &Path) -> Result<LoadedMaps, FitError> {
             let c = read("confidence")?;
             if c.channels < 3 {
                 return Err(svbrdf_core::CoreError::format(
-                    &dir.join("maps/confidence.exr"),
-                    format!("{} channels (expected 3: diffuse, specular, normal)", c.channels),
+                    dir.join("maps/confidence.exr"),
+                    format!(
+                        "{} channels (expected 3: diffuse, specular, normal)",
+                        c.channels
+                    ),
                 )
                 .into());
             }

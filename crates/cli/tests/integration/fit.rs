@@ -291,7 +291,9 @@ fn a_sweep_that_never_passes_over_the_edges_leaves_their_gloss_unmeasured() {
     );
     let m: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("fit.json")).unwrap()).unwrap();
-    let unseen = m["summary"]["confidence"]["specular_unseen"].as_f64().unwrap();
+    let unseen = m["summary"]["confidence"]["specular_unseen"]
+        .as_f64()
+        .unwrap();
     assert!(unseen > 0.25, "{}", m["summary"]["confidence"]);
     let img = svbrdf_core::maps::read_image_linear(
         &out.join("maps/confidence.exr"),
