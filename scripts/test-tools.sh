@@ -4,7 +4,8 @@
 #     and the viewer), nodejs + npm, python3-venv;
 #   - tools/node_modules: the Khronos glTF validator (npm, versions pinned in
 #     tools/package-lock.json);
-#   - .venv-tools: Mitsuba 3 (pip), which renders the exported scene.
+#   - .venv-tools: Mitsuba 3 (pip), which renders the exported scene, and NVIDIA's FLIP
+#     evaluator (pip flip-evaluator: .venv-tools/bin/flip) for `svbrdf eval`.
 # Idempotent: what is there is kept. Tests that need a tool skip with a reason when it
 # is missing, unless SVBRDF_REQUIRE_TOOLS=1 (set by .ci/run), where they fail.
 set -euo pipefail
@@ -33,4 +34,9 @@ if ! .venv-tools/bin/python -c "import mitsuba" >/dev/null 2>&1; then
   python3 -m venv .venv-tools
   .venv-tools/bin/pip install -q --disable-pip-version-check "mitsuba==3.*"
 fi
-echo "test-tools: chromium, gltf-validator and mitsuba are ready" >&2
+if [ ! -x .venv-tools/bin/flip ]; then
+  echo "test-tools: pip install flip-evaluator into .venv-tools" >&2
+  [ -d .venv-tools ] || python3 -m venv .venv-tools
+  .venv-tools/bin/pip install -q --disable-pip-version-check "flip-evaluator==1.7"
+fi
+echo "test-tools: chromium, gltf-validator, mitsuba and flip are ready" >&2

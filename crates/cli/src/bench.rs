@@ -688,6 +688,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
                 no_refine: false,
                 seed: None,
             },
+            flip: None,
             overwrite: false,
         };
         let s = crate::eval_cmd::run_eval(&args)?;
@@ -701,6 +702,8 @@ pub fn run(a: &BenchArgs) -> Result<()> {
                 "sets": s["sets"],
                 "full": s["full"]["mean"],
                 "diffuse_only": s["diffuse_only"]["mean"],
+                "full_wins": s["pairwise"]["full_wins"],
+                "flip_metric": s["flip_metric"],
                 "fit_seconds_mean": s["full"]["fit_seconds_mean"],
                 "seconds": t.elapsed().as_secs_f64(),
                 "machine": machine(),

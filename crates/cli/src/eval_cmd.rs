@@ -6,7 +6,11 @@ use std::path::{Path, PathBuf};
 use anyhow::{Context, Result};
 use clap::Args;
 use serde_json::json;
-use svbrdf_fit::holdout::{evaluate_holdout, HoldoutConfig, HoldoutReport, MeanErrors};
+use svbrdf_fit::holdout::{
+    evaluate_holdout, HoldoutConfig, HoldoutReport, ImageMetric, MeanErrors,
+};
+
+use crate::flip::{FlipTool, FLIP_INSTALL};
 
 use crate::fit_cmd::{CvFrames, FitOptions};
 
@@ -86,6 +90,10 @@ pub struct EvalArgs {
     /// Also evaluate the diffuse-only baseline (into OUT/diffuse-only/) and report both.
     #[arg(long, conflicts_with = "diffuse_only")]
     pub baseline: bool,
+    /// NVIDIA's FLIP evaluator (`flip`, pip flip-evaluator) for the perceptual figure;
+    /// default: $SVBRDF_FLIP, else `flip` on the PATH, else FLIP is not reported.
+    #[arg(long)]
+    pub flip: Option<PathBuf>,
     /// How to fit (as `svbrdf fit`; a lower --px-per-cm is faster).
     #[command(flatten)]
     pub fit: FitOptions,
@@ -104,12 +112,26 @@ fn holdout_config(a: &EvalArgs, holdout: Vec<u32>, diffuse_only: bool) -> Result
     })
 }
 
-fn one(a: &EvalArgs, holdout: Vec<u32>, out: &Path, diffuse_only: bool) -> Result<HoldoutReport> {
+fn one(
+    a: &EvalArgs,
+    holdout: Vec<u32>,
+    out: &Path,
+    diffuse_only: bool,
+    flip: Option<&FlipTool>,
+) -> Result<HoldoutReport> {
     let cfg = holdout_config(a, holdout, diffuse_only)?;
     let progress = crate::progress::Bars::new();
-    let (report, out, fitted) =
-        evaluate_holdout(&a.capture, out, a.overwrite, &cfg, &CvFrames, &progress)
-            .with_context(|| format!("evaluating {}", a.capture.display()))?;
+    let metric = flip.map(|f| f as &dyn ImageMetric);
+    let (report, out, fitted) = evaluate_holdout(
+        &a.capture,
+        out,
+        a.overwrite,
+        &cfg,
+        &CvFrames,
+        metric,
+        &progress,
+    )
+    .with_context(|| format!("evaluating {}", a.capture.display()))?;
     let maps = svbrdf_export::MaterialMaps {
         model: cfg.fit.model,
         grid: fitted.grid,
@@ -119,7 +141,7 @@ fn one(a: &EvalArgs, holdout: Vec<u32>, out: &Path, diffuse_only: bool) -> Resul
     };
     svbrdf_export::report::write_report(&out, Some(&maps))?;
     say!(
-        "{}held out {:?}: linear RMSE {:.4} ({:.1}% of the mean), sRGB RMSE {:.4}, SSIM linear {:.3}, sRGB {:.3}; {}",
+        "{}held out {:?}: linear RMSE {:.4} ({:.1}% of the mean), sRGB RMSE {:.4}, SSIM linear {:.3}, sRGB {:.3}{}; {}",
         if diffuse_only { "diffuse only: " } else { "" },
         report.holdout,
         report.mean.rmse_linear,
@@ -127,9 +149,52 @@ fn one(a: &EvalArgs, holdout: Vec<u32>, out: &Path, diffuse_only: bool) -> Resul
         report.mean.rmse_srgb,
         report.mean.ssim_linear,
         report.mean.ssim_srgb,
+        flip_text(&report.mean),
         out.join("report.html").display()
     );
     Ok(report)
+}
+
+/// ", FLIP 0.123" where the figure exists.
+fn flip_text(m: &MeanErrors) -> String {
+    m.flip.map(|f| format!(", FLIP {f:.3}")).unwrap_or_default()
+}
+
+/// Per held-out set, whether the full fit beats the diffuse-only baseline in each
+/// figure (sRGB RMSE and FLIP lower, SSIM higher), and how many sets it wins.
+fn pairwise(full: &[HoldoutReport], base: &[HoldoutReport]) -> serde_json::Value {
+    let mut rows = Vec::new();
+    let (mut rmse, mut ssim, mut flip, mut all) = (0, 0, 0, 0);
+    let mut with_flip = 0;
+    for (f, b) in full.iter().zip(base) {
+        let w_rmse = f.mean.rmse_srgb < b.mean.rmse_srgb;
+        let w_ssim = f.mean.ssim_srgb > b.mean.ssim_srgb;
+        let w_flip = match (f.mean.flip, b.mean.flip) {
+            (Some(x), Some(y)) => Some(x < y),
+            _ => None,
+        };
+        rmse += usize::from(w_rmse);
+        ssim += usize::from(w_ssim);
+        flip += usize::from(w_flip == Some(true));
+        with_flip += usize::from(w_flip.is_some());
+        all += usize::from(w_rmse && w_ssim && w_flip != Some(false));
+        rows.push(json!({
+            "holdout": f.holdout,
+            "full": f.mean,
+            "diffuse_only": b.mean,
+            "full_wins": {"rmse_srgb": w_rmse, "ssim_srgb": w_ssim, "flip": w_flip},
+        }));
+    }
+    json!({
+        "sets": rows.len(),
+        "full_wins": {
+            "rmse_srgb": rmse,
+            "ssim_srgb": ssim,
+            "flip": (with_flip > 0).then_some(flip),
+            "every_figure": all,
+        },
+        "per_set": rows,
+    })
 }
 
 /// Every `k`-subset of `ids`, in lexicographic order.
@@ -180,7 +245,16 @@ pub fn run_eval(a: &EvalArgs) -> Result<serde_json::Value> {
         }
         (None, None) => anyhow::bail!("give --holdout IDS or --leave-out K"),
     };
-    let mut summary = json!({"capture": a.capture.display().to_string(), "sets": sets.len()});
+    let flip = FlipTool::locate(a.flip.as_deref())?;
+    if flip.is_none() {
+        say!("FLIP not reported: no `flip` command found ({FLIP_INSTALL})");
+    }
+    let mut summary = json!({
+        "capture": a.capture.display().to_string(),
+        "sets": sets.len(),
+        "flip_metric": flip.as_ref().map(|f| f.describe()),
+    });
+    let mut by_variant = Vec::new();
     for diffuse_only in variants {
         let base = if diffuse_only && a.baseline {
             a.out.join("diffuse-only")
@@ -204,7 +278,7 @@ pub fn run_eval(a: &EvalArgs) -> Result<serde_json::Value> {
                 reports.push(svbrdf_core::fsutil::read_json(&done)?);
                 continue;
             }
-            reports.push(one(a, set.clone(), &dir, diffuse_only)?);
+            reports.push(one(a, set.clone(), &dir, diffuse_only, flip.as_ref())?);
         }
         let all: Vec<&svbrdf_fit::holdout::HoldoutError> =
             reports.iter().flat_map(|r| r.images.iter()).collect();
@@ -217,7 +291,7 @@ pub fn run_eval(a: &EvalArgs) -> Result<serde_json::Value> {
         });
         if sets.len() > 1 {
             say!(
-                "{}leave-{}-out over {} sets: linear RMSE {:.4} ({:.1}%), sRGB RMSE {:.4}, SSIM linear {:.3}, sRGB {:.3}",
+                "{}leave-{}-out over {} sets: linear RMSE {:.4} ({:.1}%), sRGB RMSE {:.4}, SSIM linear {:.3}, sRGB {:.3}{}",
                 if diffuse_only { "diffuse only: " } else { "" },
                 sets[0].len(),
                 sets.len(),
@@ -225,9 +299,24 @@ pub fn run_eval(a: &EvalArgs) -> Result<serde_json::Value> {
                 100.0 * mean.relative_rmse_linear,
                 mean.rmse_srgb,
                 mean.ssim_linear,
-                mean.ssim_srgb
+                mean.ssim_srgb,
+                flip_text(&mean)
             );
         }
+        by_variant.push(reports);
+    }
+    if let [full, base] = &by_variant[..] {
+        let p = pairwise(full, base);
+        let w = &p["full_wins"];
+        say!(
+            "full fit against diffuse-only, per held-out set: lower sRGB RMSE in {} of {}, higher SSIM in {}, lower FLIP in {}; all of them in {}",
+            w["rmse_srgb"],
+            p["sets"],
+            w["ssim_srgb"],
+            if w["flip"].is_null() { "- (no FLIP)".to_string() } else { w["flip"].to_string() },
+            w["every_figure"]
+        );
+        summary["pairwise"] = p;
     }
     if sets.len() > 1 || a.baseline {
         svbrdf_core::fsutil::write_json(&a.out.join("eval-summary.json"), &summary)?;

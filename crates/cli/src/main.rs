@@ -590,6 +590,7 @@ fn print_summary(s: &svbrdf_synth::SynthSummary) {
 
 mod alloc;
 mod eval_cmd;
+mod flip;
 mod run_cmd;
 mod view;
 

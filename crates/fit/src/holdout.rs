@@ -51,6 +51,25 @@ pub struct HoldoutError {
     pub ssim_srgb: f64,
     /// Photo | rendering | 4 x |difference| (sRGB PNG), relative to the evaluation folder.
     pub strip: String,
+    /// Mean perceptual difference (NVIDIA's LDR-FLIP, in [0, 1], lower is better) over
+    /// the compared pixels, where a FLIP evaluator was given.
+    #[serde(default)]
+    pub flip: Option<f64>,
+}
+
+/// A perceptual image difference computed by an outside tool (the binary runs NVIDIA's
+/// FLIP evaluator); this crate only hands it the images.
+pub trait ImageMetric {
+    /// What it is, for the records (tool, version, settings).
+    fn describe(&self) -> String;
+    /// Mean difference over the pixels where `mask` is set, between two sRGB images in
+    /// [0, 1] of the same size (3 channels).
+    fn mean_error(
+        &self,
+        reference: &ImageF32,
+        test: &ImageF32,
+        mask: &[bool],
+    ) -> Result<f64, FitError>;
 }
 
 /// What an evaluation found.
@@ -70,6 +89,9 @@ pub struct HoldoutReport {
     pub mean: MeanErrors,
     /// Seconds spent fitting.
     pub fit_seconds: f64,
+    /// The perceptual metric behind the `flip` figures, where one was given.
+    #[serde(default)]
+    pub flip_metric: Option<String>,
 }
 
 /// Means over held-out images.
@@ -85,6 +107,9 @@ pub struct MeanErrors {
     pub ssim_linear: f64,
     /// See [`HoldoutError`].
     pub ssim_srgb: f64,
+    /// See [`HoldoutError`]; over the images that have it.
+    #[serde(default)]
+    pub flip: Option<f64>,
 }
 
 impl MeanErrors {
@@ -92,7 +117,12 @@ impl MeanErrors {
     pub fn of<'a>(errs: impl IntoIterator<Item = &'a HoldoutError>) -> Self {
         let mut m = Self::default();
         let mut n = 0.0;
+        let (mut flip, mut nf) = (0.0, 0.0);
         for e in errs {
+            if let Some(f) = e.flip {
+                flip += f;
+                nf += 1.0;
+            }
             m.rmse_linear += e.rmse_linear;
             m.relative_rmse_linear += e.relative_rmse_linear;
             m.rmse_srgb += e.rmse_srgb;
@@ -107,6 +137,7 @@ impl MeanErrors {
             m.ssim_linear /= n;
             m.ssim_srgb /= n;
         }
+        m.flip = (nf > 0.0).then(|| flip / nf);
         m
     }
 }
@@ -361,6 +392,7 @@ pub fn evaluate_holdout(
     overwrite: bool,
     cfg: &HoldoutConfig,
     source: &dyn FrameSource,
+    flip: Option<&dyn ImageMetric>,
     progress: &dyn Progress,
 ) -> Result<(HoldoutReport, PathBuf, crate::output::LoadedMaps), FitError> {
     cfg.fit.validate()?;
@@ -403,6 +435,10 @@ pub fn evaluate_holdout(
         let (rl, mean) = rmse(&photo, &ours, &mask);
         let (ps, os) = (to_srgb(&photo), to_srgb(&ours));
         let (rs, _) = rmse(&ps, &os, &mask);
+        let flip = match flip {
+            Some(m) => Some(m.mean_error(&ps, &os, &mask)?),
+            None => None,
+        };
         let name = f
             .image
             .clone()
@@ -431,6 +467,7 @@ pub fn evaluate_holdout(
             ssim_linear: ssim(&photo, &ours, &mask),
             ssim_srgb: ssim(&ps, &os, &mask),
             strip,
+            flip,
         });
         progress.advance(1);
         Ok(())
@@ -445,6 +482,7 @@ pub fn evaluate_holdout(
         mean: MeanErrors::of(&images),
         images,
         fit_seconds,
+        flip_metric: flip.map(|m| m.describe()),
     };
     svbrdf_core::fsutil::write_json(&eval_dir.join(EVAL_FILE), &report)?;
     let out = staging.commit()?;

@@ -51,19 +51,30 @@ fn eval_on_real_photos_beats_the_diffuse_only_baseline() {
     assert_eq!(c["frames"].as_array().map(Vec::len), Some(9));
     assert!(c["light_intensity"].is_null());
 
+    // NVIDIA's FLIP evaluator, where installed (scripts/test-tools.sh).
+    let flip = repo_root().join(".venv-tools/bin/flip");
+    let has_flip = !skip_without(
+        "flip-evaluator",
+        flip.is_file(),
+        "scripts/test-tools.sh installs it into .venv-tools",
+    );
     let out = temp_dir().join("eval");
-    let o = svbrdf(&[
-        "eval",
-        "--capture",
-        cap.to_str().unwrap(),
-        "--holdout",
-        "7,8",
-        "--px-per-cm",
-        "25",
-        "--baseline",
-        "--out",
-        out.to_str().unwrap(),
-    ]);
+    let mut args = vec![
+        "eval".to_string(),
+        "--capture".into(),
+        cap.to_str().unwrap().into(),
+        "--holdout".into(),
+        "7,8".into(),
+        "--px-per-cm".into(),
+        "25".into(),
+        "--baseline".into(),
+        "--out".into(),
+        out.to_str().unwrap().into(),
+    ];
+    if has_flip {
+        args.extend(["--flip".into(), flip.to_str().unwrap().into()]);
+    }
+    let o = svbrdf(&args.iter().map(String::as_str).collect::<Vec<_>>());
     assert!(o.status.success(), "{}", stderr(&o));
     let full = json(out.join("eval/eval.json"));
     let diffuse = json(out.join("diffuse-only/eval/eval.json"));
@@ -84,6 +95,27 @@ fn eval_on_real_photos_beats_the_diffuse_only_baseline() {
         assert!(out.join(format!("eval/strip_{id}.png")).is_file());
     }
     let (f, d) = (&full["mean"], &diffuse["mean"]);
+    let summary = json(out.join("eval-summary.json"));
+    let wins = &summary["pairwise"]["full_wins"];
+    if has_flip {
+        // Perceptual difference in [0, 1]; the full fit looks closer to the photos.
+        for r in [&full, &diffuse] {
+            for im in r["images"].as_array().unwrap() {
+                let v = im["flip"].as_f64().unwrap();
+                assert!(v > 0.0 && v < 1.0, "flip {v}");
+            }
+            assert!(r["flip_metric"].as_str().unwrap().contains("FLIP"));
+        }
+        assert!(
+            f["flip"].as_f64() < d["flip"].as_f64(),
+            "specular fit {f} vs diffuse only {d}"
+        );
+        assert_eq!(wins["flip"], 1, "{summary}");
+    } else {
+        assert!(full["images"][0]["flip"].is_null());
+    }
+    assert_eq!(summary["pairwise"]["sets"], 1, "{summary}");
+    assert_eq!(wins["rmse_srgb"], 1, "{summary}");
     assert!(
         f["rmse_srgb"].as_f64() < d["rmse_srgb"].as_f64(),
         "specular fit {f} vs diffuse only {d}"

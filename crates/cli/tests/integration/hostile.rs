@@ -1317,6 +1317,22 @@ fn import_eval_cases(c: &mut Cases) {
         reject(&["0"]),
     );
     c.cmd(
+        "eval: a FLIP evaluator that does not exist",
+        &[
+            "eval",
+            "--capture",
+            &reg,
+            "--holdout",
+            "3",
+            "--flip",
+            "/nonexistent/flip",
+            "--out",
+            "{out}",
+        ],
+        vec![f.registered.clone()],
+        reject(&["/nonexistent/flip"]),
+    );
+    c.cmd(
         "eval: leave-out all",
         &[
             "eval",
