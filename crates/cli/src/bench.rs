@@ -335,15 +335,30 @@ pub fn load_truth(synth_dir: &std::path::Path) -> Result<svbrdf_fit::evaluate::T
 pub fn maps_accuracy(
     fit_dir: &std::path::Path,
     synth_dir: &std::path::Path,
-) -> Result<svbrdf_fit::evaluate::Accuracy> {
+) -> Result<(
+    svbrdf_fit::evaluate::Accuracy,
+    Option<svbrdf_fit::evaluate::ConfidenceBreakdown>,
+)> {
     let (maps, intensity) = crate::run_cmd::load_fit(fit_dir)?;
-    Ok(svbrdf_fit::evaluate::evaluate(
+    let truth = load_truth(synth_dir)?;
+    let acc = svbrdf_fit::evaluate::evaluate(
         &maps.grid,
         &maps.params,
         maps.model.model(),
         intensity,
-        &load_truth(synth_dir)?,
-    ))
+        &truth,
+    );
+    let by_confidence = maps.confidence.as_ref().map(|c| {
+        svbrdf_fit::evaluate::relight_by_confidence(
+            &maps.grid,
+            &maps.params,
+            &c.per_pixel,
+            maps.model.model(),
+            intensity,
+            &truth,
+        )
+    });
+    Ok((acc, by_confidence))
 }
 
 /// Fit a capture with the intensity withheld, with and without refinement, and compare
@@ -731,10 +746,15 @@ pub fn run(a: &BenchArgs) -> Result<()> {
         }
     }
     if let (Some(m), Some(t)) = (&a.fit_maps, &a.truth) {
-        let acc = maps_accuracy(m, t)?;
+        let (acc, by_confidence) = maps_accuracy(m, t)?;
         println!(
             "{}",
-            json!({"bench": "maps_accuracy", "maps": m.display().to_string(), "accuracy": acc})
+            json!({
+                "bench": "maps_accuracy",
+                "maps": m.display().to_string(),
+                "accuracy": acc,
+                "relight_by_specular_confidence": by_confidence,
+            })
         );
         if a.no_brdf && a.fit_capture.is_none() && a.align_capture.is_none() {
             return Ok(());

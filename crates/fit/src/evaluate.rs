@@ -193,6 +193,94 @@ pub fn evaluate(
     }
 }
 
+/// Relighting error by the fit's own specular confidence: does the confidence map
+/// point at the parts the fit gets wrong under new lights?
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct ConfidenceBreakdown {
+    /// Classes, in order: highlight peak seen (1), only its flank or clipped (0.5),
+    /// never seen (0).
+    pub classes: [String; 3],
+    /// Share of the compared pixels in each class.
+    pub shares: [f64; 3],
+    /// Per class, the relative RMSE of relighting (as `relight_relative_rmse`, each
+    /// class against its own mean radiance), averaged over the held-out lights;
+    /// `None` for an empty class.
+    pub relight_relative_rmse: [Option<f64>; 3],
+}
+
+/// [`ConfidenceBreakdown`] of fitted maps with their per-pixel confidence
+/// (`[diffuse, specular, normal]`, as `maps/confidence.exr`).
+pub fn relight_by_confidence(
+    grid: &PlaneGrid,
+    params: &[BrdfParams],
+    confidence: &[[f32; 3]],
+    model: &dyn BrdfModel,
+    intensity: [f64; 3],
+    truth: &Truth,
+) -> ConfidenceBreakdown {
+    let r = truth.grid.region;
+    let m = 0.5 / truth.grid.px_per_cm;
+    let class = |c: f32| -> usize {
+        if c >= 1.0 {
+            0
+        } else if c > 0.0 {
+            1
+        } else {
+            2
+        }
+    };
+    let mut idx = Vec::new();
+    for row in 0..grid.height {
+        for col in 0..grid.width {
+            let q = grid.pixel_centre(col, row);
+            let i = row * grid.width + col;
+            if q.x < r.x_min + m || q.x > r.x_max - m || q.y < r.y_min + m || q.y > r.y_max - m {
+                continue;
+            }
+            if sample(&truth.mask, &truth.grid, q)[0] < 0.999 || i >= confidence.len() {
+                continue;
+            }
+            idx.push((i, q, class(confidence[i][1])));
+        }
+    }
+    let mut counts = [0usize; 3];
+    for &(_, _, k) in &idx {
+        counts[k] += 1;
+    }
+    let total = idx.len().max(1) as f64;
+    let mut per_class = [0.0f64; 3];
+    let mut lights = 0.0;
+    for (img, light, camera) in &truth.holdout {
+        let ours = relight(grid, params, model, intensity, *light, *camera);
+        let (mut se, mut sum) = ([0.0f64; 3], [0.0f64; 3]);
+        for &(i, q, k) in &idx {
+            let t = sample(img, &truth.grid, q);
+            for c in 0..3 {
+                se[k] += (f64::from(ours.data[3 * i + c]) - t[c]).powi(2);
+                sum[k] += t[c];
+            }
+        }
+        for k in 0..3 {
+            let n = 3.0 * counts[k] as f64;
+            if n > 0.0 && sum[k] > 0.0 {
+                per_class[k] += (se[k] / n).sqrt() / (sum[k] / n);
+            }
+        }
+        lights += 1.0;
+    }
+    ConfidenceBreakdown {
+        classes: [
+            "highlight peak seen".into(),
+            "flank or clipped peak only".into(),
+            "highlight never seen".into(),
+        ],
+        shares: counts.map(|c| c as f64 / total),
+        relight_relative_rmse: std::array::from_fn(|k| {
+            (counts[k] > 0 && lights > 0.0).then(|| per_class[k] / lights)
+        }),
+    }
+}
+
 /// What perfect maps lose to a blur: the true maps, each blurred by a Gaussian of
 /// `sigma_px` of their own pixels (normals renormalised), compared with the truth as
 /// fitted maps are. A capture whose video samples the surface at about one output
