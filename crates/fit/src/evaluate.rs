@@ -81,16 +81,10 @@ fn sample(img: &ImageF32, grid: &PlaneGrid, q: Vec2) -> [f64; 3] {
     o.map(f64::from)
 }
 
-/// Compare fitted maps with the truth.
-pub fn evaluate(
-    grid: &PlaneGrid,
-    params: &[BrdfParams],
-    model: &dyn BrdfModel,
-    intensity: [f64; 3],
-    truth: &Truth,
-) -> Accuracy {
+/// The map pixels compared with the truth (index, plane point): on the material, and
+/// half a truth pixel inside the truth region, so bilinear samples are interior.
+fn compared_pixels(grid: &PlaneGrid, truth: &Truth) -> Vec<(usize, Vec2)> {
     let r = truth.grid.region;
-    // Half a truth pixel inside the truth region, so bilinear samples are interior.
     let m = 0.5 / truth.grid.px_per_cm;
     let mut idx = Vec::new();
     for row in 0..grid.height {
@@ -105,6 +99,18 @@ pub fn evaluate(
             idx.push((row * grid.width + col, q));
         }
     }
+    idx
+}
+
+/// Compare fitted maps with the truth.
+pub fn evaluate(
+    grid: &PlaneGrid,
+    params: &[BrdfParams],
+    model: &dyn BrdfModel,
+    intensity: [f64; 3],
+    truth: &Truth,
+) -> Accuracy {
+    let idx = compared_pixels(grid, truth);
     let (mut ft, mut ff) = (0.0, 0.0);
     for &(i, q) in &idx {
         let t = sample(&truth.diffuse, &truth.grid, q);
@@ -218,8 +224,6 @@ pub fn relight_by_confidence(
     intensity: [f64; 3],
     truth: &Truth,
 ) -> ConfidenceBreakdown {
-    let r = truth.grid.region;
-    let m = 0.5 / truth.grid.px_per_cm;
     let class = |c: f32| -> usize {
         if c >= 1.0 {
             0
@@ -229,20 +233,11 @@ pub fn relight_by_confidence(
             2
         }
     };
-    let mut idx = Vec::new();
-    for row in 0..grid.height {
-        for col in 0..grid.width {
-            let q = grid.pixel_centre(col, row);
-            let i = row * grid.width + col;
-            if q.x < r.x_min + m || q.x > r.x_max - m || q.y < r.y_min + m || q.y > r.y_max - m {
-                continue;
-            }
-            if sample(&truth.mask, &truth.grid, q)[0] < 0.999 || i >= confidence.len() {
-                continue;
-            }
-            idx.push((i, q, class(confidence[i][1])));
-        }
-    }
+    let idx: Vec<(usize, Vec2, usize)> = compared_pixels(grid, truth)
+        .into_iter()
+        .filter(|(i, _)| *i < confidence.len())
+        .map(|(i, q)| (i, q, class(confidence[i][1])))
+        .collect();
     let mut counts = [0usize; 3];
     for &(_, _, k) in &idx {
         counts[k] += 1;
