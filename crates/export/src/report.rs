@@ -728,7 +728,16 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
                     num(&im["rmse_srgb"], 4),
                     num(&im["ssim_linear"], 3),
                     num(&im["ssim_srgb"], 3)
-                ),
+                ) + &im["flip"]
+                    .as_f64()
+                    .map(|f| format!("; FLIP {f:.3}"))
+                    .unwrap_or_default(),
+            ));
+        }
+        if let Some(m) = e["flip_metric"].as_str() {
+            rows.push((
+                "FLIP".into(),
+                format!("{m}; 0 = identical, lower is better"),
             ));
         }
         rows.push((

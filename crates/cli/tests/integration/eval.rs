@@ -126,6 +126,7 @@ fn eval_on_real_photos_beats_the_diffuse_only_baseline() {
     );
     let report = std::fs::read_to_string(out.join("report.html")).unwrap();
     assert!(report.contains("Held-out photographs") && report.contains("07.png"));
+    assert_eq!(report.contains("FLIP 0."), has_flip);
     // The strips show in a real browser, with every other image of the report.
     let url = format!("file://{}", out.join("report.html").display());
     if let Some(dom) = crate::util::chromium_dom(&url, 5000, crate::util::images_loaded) {
