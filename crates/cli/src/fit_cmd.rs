@@ -151,7 +151,12 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
         100.0 * worst
     );
     if let Some(c) = &s.confidence {
-        say!("confidence (maps/confidence.png): {}", c.sentence());
+        say!(
+            "confidence (maps/confidence.png): {} Final clusters whose highlight peak no pixel saw: {} of {} (clusters.json: specular_seen).",
+            c.sentence(),
+            s.clusters_without_peak,
+            s.final_clusters
+        );
     }
     crate::print_timings(&s.timings);
     crate::print_warnings(&s.warnings);

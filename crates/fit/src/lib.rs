@@ -268,6 +268,11 @@ pub struct ClusterInfo {
     pub rmse: f64,
     /// Whether its solver converged before the iteration cap.
     pub converged: bool,
+    /// Shares of its pixels whose highlight peak was seen unclipped, only its flank or
+    /// clipped, or never (see [`confidence`]): a cluster none of whose pixels saw the
+    /// peak has a lobe fitted on flanks alone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub specular_seen: Option<[f64; 3]>,
 }
 
 /// How the light intensity was obtained.
@@ -334,6 +339,10 @@ pub struct FitSummary {
     /// before they existed.
     #[serde(default)]
     pub confidence: Option<confidence::ConfidenceSummary>,
+    /// Final clusters none of whose pixels saw the highlight's peak unclipped: their
+    /// lobe rests on flanks, clipped peaks or nothing.
+    #[serde(default)]
+    pub clusters_without_peak: usize,
     /// Seconds per step.
     pub timings: Vec<(String, f64)>,
 }
@@ -711,6 +720,31 @@ pub fn fit(
     let t = Instant::now();
     let (confidence, confidence_summary) = confidence::confidence(obs, &params);
     timings.push(("confidence".to_string(), t.elapsed().as_secs_f64()));
+    // Per final cluster: shares of its pixels by specular confidence.
+    let mut counts = vec![[0usize; 3]; leaves.len()];
+    for (p, &c) in cluster.iter().enumerate() {
+        if obs.count(p) == 0 {
+            continue;
+        }
+        let g = confidence[p][1];
+        let k = if g >= confidence::SPECULAR_PEAK {
+            0
+        } else if g > 0.0 {
+            1
+        } else {
+            2
+        };
+        if let Some(row) = counts.get_mut(c as usize) {
+            row[k] += 1;
+        }
+    }
+    let cluster_specular: Vec<Option<[f64; 3]>> = counts
+        .iter()
+        .map(|c| {
+            let n = c.iter().sum::<usize>();
+            (n > 0).then(|| c.map(|v| v as f64 / n as f64))
+        })
+        .collect();
     let mut warnings = Vec::new();
     if confidence_summary.specular_unseen > SPECULAR_UNSEEN_WARNING {
         warnings.push(format!(
@@ -756,6 +790,10 @@ pub fn fit(
         frames,
         timings,
         confidence: Some(confidence_summary),
+        clusters_without_peak: cluster_specular
+            .iter()
+            .filter(|c| c.is_some_and(|c| c[0] == 0.0))
+            .count(),
     };
     Ok((
         FittedMaps {
@@ -778,6 +816,7 @@ pub fn fit(
                     refitted_lobe: lobes[i],
                     rmse: (l.sse / (3 * l.observations.max(1)) as f64).sqrt(),
                     converged: l.converged,
+                    specular_seen: cluster_specular[i],
                 })
                 .collect(),
         },

@@ -295,6 +295,21 @@ fn a_sweep_that_never_passes_over_the_edges_leaves_their_gloss_unmeasured() {
         .as_f64()
         .unwrap();
     assert!(unseen > 0.25, "{}", m["summary"]["confidence"]);
+    // Per cluster: the shares of its pixels by specular confidence add up to 1.
+    let clusters: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("clusters.json")).unwrap()).unwrap();
+    let clusters = clusters.as_array().unwrap();
+    let without_peak = clusters
+        .iter()
+        .filter(|c| c["specular_seen"][0].as_f64() == Some(0.0))
+        .count();
+    for c in clusters {
+        let s: f64 = (0..3)
+            .map(|k| c["specular_seen"][k].as_f64().unwrap())
+            .sum();
+        assert!((s - 1.0).abs() < 1e-9, "{c}");
+    }
+    assert_eq!(m["summary"]["clusters_without_peak"], without_peak);
     let img = svbrdf_core::maps::read_image_linear(
         &out.join("maps/confidence.exr"),
         svbrdf_core::maps::Encoding::Linear,
