@@ -13,6 +13,30 @@ pub const CONFIDENCE_FILE: &str = "confidence.png";
 /// What a confidence map's channels hold (linear values in [0, 1], not colours).
 pub const CONFIDENCE_MEANING: &str = "confidence in [0, 1] per parameter group, linear: R = diffuse albedo (frames that saw the pixel, full at 8), G = specular lobe (1: the highlight's peak seen unclipped, 0.5: only its flank or clipped, 0: never seen, the lobe is its cluster's), B = normal (spread of the light directions, full at 0.15)";
 
+/// What a pixel's specular confidence (the map's G channel) says about its highlight.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum SpecularSeen {
+    /// The peak was seen unclipped (confidence 1).
+    Peak = 0,
+    /// Only its flank, or a clipped peak (confidence between 0 and 1).
+    Flank = 1,
+    /// Never seen (confidence 0): the pixel carries its cluster's lobe.
+    Never = 2,
+}
+
+impl SpecularSeen {
+    /// The class of a specular confidence value.
+    pub fn of(specular: f32) -> Self {
+        if specular >= 1.0 {
+            Self::Peak
+        } else if specular > 0.0 {
+            Self::Flank
+        } else {
+            Self::Never
+        }
+    }
+}
+
 /// What the confidence maps say over the observed pixels, as shares in [0, 1].
 #[derive(Debug, Clone, Copy, PartialEq, Default, Serialize, Deserialize)]
 pub struct ConfidenceSummary {

@@ -15,6 +15,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use serde_json::Value;
+use svbrdf_core::confidence::SpecularSeen;
 use svbrdf_core::fsutil::write_atomic;
 use svbrdf_core::geometry::Vec3;
 use svbrdf_core::image::ImageF32;
@@ -151,10 +152,10 @@ pub fn gloss_picture(maps: &MaterialMaps) -> Option<ImageF32> {
     Some(hatched(
         maps,
         [0.0, 1.0, 1.0],
-        |i| match c.per_pixel[i][1] {
-            v if v <= 0.0 => Hatch::Dense,
-            v if v < 1.0 => Hatch::Sparse,
-            _ => Hatch::None,
+        |i| match SpecularSeen::of(c.per_pixel[i][1]) {
+            SpecularSeen::Never => Hatch::Dense,
+            SpecularSeen::Flank => Hatch::Sparse,
+            SpecularSeen::Peak => Hatch::None,
         },
         |_| false,
     ))

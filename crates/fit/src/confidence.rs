@@ -29,7 +29,7 @@ use svbrdf_core::brdf::{BrdfParams, ShadingFrame};
 
 use crate::observations::Observations;
 
-pub use svbrdf_core::confidence::{ConfidenceSummary, DIFFUSE_FULL_VIEWS};
+pub use svbrdf_core::confidence::{ConfidenceSummary, SpecularSeen, DIFFUSE_FULL_VIEWS};
 /// Frames a pixel needs for any normal or specular confidence.
 pub const MIN_VIEWS: usize = 3;
 /// Observations within one (unclipped) or two lobe widths a pixel needs.
@@ -41,9 +41,6 @@ pub const SPECULAR_FLANK: f32 = 0.5;
 /// Standard deviation of the light direction's plane components (in the direction
 /// where it is smallest) at which the normal confidence is full (0.15: about 9 degrees).
 pub const NORMAL_FULL_SPREAD: f64 = 0.15;
-
-/// Channel order of the confidence maps.
-pub const CHANNELS: [&str; 3] = ["diffuse", "specular", "normal"];
 
 /// Per-pixel confidences (`[diffuse, specular, normal]`, row-major like the maps) and
 /// their summary. `params` are the final per-pixel parameters.
@@ -63,12 +60,39 @@ pub fn confidence(obs: &Observations, params: &[BrdfParams]) -> (Vec<[f32; 3]>, 
     let summary = ConfidenceSummary {
         observed_pixels: observed.len(),
         diffuse_low: share(&|c| c[0] < 0.5),
-        specular_peak: share(&|c| c[1] >= SPECULAR_PEAK),
-        specular_flank: share(&|c| c[1] > 0.0 && c[1] < SPECULAR_PEAK),
-        specular_unseen: share(&|c| c[1] <= 0.0),
+        specular_peak: share(&|c| SpecularSeen::of(c[1]) == SpecularSeen::Peak),
+        specular_flank: share(&|c| SpecularSeen::of(c[1]) == SpecularSeen::Flank),
+        specular_unseen: share(&|c| SpecularSeen::of(c[1]) == SpecularSeen::Never),
         normal_low: share(&|c| c[2] < 0.5),
     };
     (per_pixel, summary)
+}
+
+/// Per cluster (ids as in `cluster`, `clusters` of them): the shares of its observed
+/// pixels whose highlight was seen at the peak, only on its flank, or never
+/// ([`SpecularSeen`] order); `None` for a cluster without observed pixels.
+pub fn cluster_specular(
+    obs: &Observations,
+    confidence: &[[f32; 3]],
+    cluster: &[u32],
+    clusters: usize,
+) -> Vec<Option<[f64; 3]>> {
+    let mut counts = vec![[0usize; 3]; clusters];
+    for (p, &c) in cluster.iter().enumerate() {
+        if obs.count(p) == 0 {
+            continue;
+        }
+        if let Some(row) = counts.get_mut(c as usize) {
+            row[SpecularSeen::of(confidence[p][1]) as usize] += 1;
+        }
+    }
+    counts
+        .iter()
+        .map(|c| {
+            let n = c.iter().sum::<usize>();
+            (n > 0).then(|| c.map(|v| v as f64 / n as f64))
+        })
+        .collect()
 }
 
 /// Confidences of one pixel.

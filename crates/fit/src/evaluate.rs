@@ -224,15 +224,7 @@ pub fn relight_by_confidence(
     intensity: [f64; 3],
     truth: &Truth,
 ) -> ConfidenceBreakdown {
-    let class = |c: f32| -> usize {
-        if c >= 1.0 {
-            0
-        } else if c > 0.0 {
-            1
-        } else {
-            2
-        }
-    };
+    let class = |c: f32| svbrdf_core::confidence::SpecularSeen::of(c) as usize;
     let idx: Vec<(usize, Vec2, usize)> = compared_pixels(grid, truth)
         .into_iter()
         .filter(|(i, _)| *i < confidence.len())

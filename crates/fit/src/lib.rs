@@ -720,31 +720,7 @@ pub fn fit(
     let t = Instant::now();
     let (confidence, confidence_summary) = confidence::confidence(obs, &params);
     timings.push(("confidence".to_string(), t.elapsed().as_secs_f64()));
-    // Per final cluster: shares of its pixels by specular confidence.
-    let mut counts = vec![[0usize; 3]; leaves.len()];
-    for (p, &c) in cluster.iter().enumerate() {
-        if obs.count(p) == 0 {
-            continue;
-        }
-        let g = confidence[p][1];
-        let k = if g >= confidence::SPECULAR_PEAK {
-            0
-        } else if g > 0.0 {
-            1
-        } else {
-            2
-        };
-        if let Some(row) = counts.get_mut(c as usize) {
-            row[k] += 1;
-        }
-    }
-    let cluster_specular: Vec<Option<[f64; 3]>> = counts
-        .iter()
-        .map(|c| {
-            let n = c.iter().sum::<usize>();
-            (n > 0).then(|| c.map(|v| v as f64 / n as f64))
-        })
-        .collect();
+    let cluster_specular = confidence::cluster_specular(obs, &confidence, &cluster, leaves.len());
     let mut warnings = Vec::new();
     if confidence_summary.specular_unseen > SPECULAR_UNSEEN_WARNING {
         warnings.push(format!(
