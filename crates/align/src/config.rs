@@ -102,6 +102,13 @@ pub struct AlignConfig {
     pub trim_second: bool,
     /// Flash frames (nearest in time) each second-stream frame is matched with.
     pub cross_pairs_per_frame: usize,
+    /// Assume every flash frame was recorded at the same exposure instead of
+    /// estimating one gain per frame (for captures with exposure locked).
+    #[serde(default)]
+    pub fixed_exposure: bool,
+    /// The per-frame gain estimate's settings.
+    #[serde(default)]
+    pub exposure: svbrdf_core::exposure::ExposureConfig,
 }
 
 impl Default for AlignConfig {
@@ -132,6 +139,8 @@ impl Default for AlignConfig {
             iterations: 8,
             max_pairs_per_frame: 8,
             all_pairs: false,
+            fixed_exposure: false,
+            exposure: svbrdf_core::exposure::ExposureConfig::default(),
             second_camera: CameraDescription {
                 frame_step: 10,
                 ..CameraDescription::default()

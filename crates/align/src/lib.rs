@@ -19,6 +19,7 @@ pub mod blur;
 mod coarse;
 pub mod config;
 pub mod corners;
+pub mod exposure;
 mod fine;
 mod frames;
 mod matching;
@@ -173,6 +174,10 @@ pub struct AlignSummary {
     /// which Y'CbCr matrix was applied); `None` for photos.
     #[serde(default)]
     pub video_decoding: Option<VideoDecoding>,
+    /// Each flash frame's exposure gain (auto-exposure drift), as estimated from
+    /// overlapping frames or assumed fixed.
+    #[serde(default)]
+    pub exposure: Option<exposure::ExposureCurve>,
 }
 
 /// What a video's stream says about its colours and what decoding did with it.
@@ -532,6 +537,7 @@ fn prepared_mappings(
             },
             camera_position: pose.centre.into(),
             light_position: pose.centre.into(),
+            exposure_gain: None,
         };
         out.push(svbrdf_core::capture::PreparedMapping::new(&frame)?);
     }

@@ -14,6 +14,7 @@ use svbrdf_core::image::ImageF32;
 use svbrdf_core::maps::{write_png, Encoding, PngDepth};
 use svbrdf_core::plane::PlaneGrid;
 
+use crate::exposure::{ExposureCurve, ExposureMode, FrameGain, GainInput, DOUBTFUL_SPREAD};
 use crate::matching::Registration;
 use crate::reference::ReferenceFrame;
 use crate::{AlignConfig, AlignError, AlignInputs, AlignSummary, Progress};
@@ -62,6 +63,89 @@ struct ReferenceCamera {
     marker_corners_cm: Vec<(i32, [[f64; 2]; 4])>,
 }
 
+/// Estimate the flash frames' exposure gains into `cap` (unless `fixed_exposure`),
+/// and the curve for `align.json`; a failed or doubtful estimate is warned.
+fn exposure_gains(
+    reg: &Registration,
+    cap: &mut RegisteredCapture,
+    cfg: &AlignConfig,
+    region: svbrdf_core::plane::Region,
+    warnings: &mut Vec<String>,
+) -> ExposureCurve {
+    let flash: Vec<usize> = (0..cap.frames.len())
+        .filter(|&k| reg.frames[k].stream == 0)
+        .collect();
+    let curve = |mode, gains: &dyn Fn(usize) -> (f64, usize), note: Option<String>| {
+        let frames: Vec<FrameGain> = flash
+            .iter()
+            .enumerate()
+            .map(|(i, &k)| {
+                let f = &cap.frames[k];
+                let (gain, samples) = gains(i);
+                FrameGain {
+                    id: f.id,
+                    frame_index: f.frame_index,
+                    time_s: f.time_s,
+                    gain,
+                    samples,
+                }
+            })
+            .collect();
+        ExposureCurve {
+            mode,
+            range_ev: None,
+            residual_spread: None,
+            samples: 0,
+            frames,
+            note,
+        }
+    };
+    if cfg.fixed_exposure {
+        return curve(ExposureMode::Fixed, &|_| (1.0, 0), None);
+    }
+    let inputs: Vec<GainInput<'_>> = flash
+        .iter()
+        .map(|&k| GainInput {
+            frame: &cap.frames[k],
+            thumb: &reg.frames[k].thumb,
+        })
+        .collect();
+    match crate::exposure::estimate(&inputs, region, &cfg.exposure) {
+        Ok(est) => {
+            let (lo, hi) = est.range_ev();
+            let doubtful = (est.residual_spread > DOUBTFUL_SPREAD).then(|| {
+                format!(
+                    "the frames' brightness varies in ways one exposure gain per frame does not explain (residual spread {:.0}%, expected under {:.0}%): flicker within frames, a moving shadow or strong room light; the gains were applied but the diffuse albedo may be uneven",
+                    100.0 * est.residual_spread,
+                    100.0 * DOUBTFUL_SPREAD
+                )
+            });
+            if let Some(w) = &doubtful {
+                warnings.push(w.clone());
+            }
+            let mut c = curve(
+                ExposureMode::Estimated,
+                &|i| (est.gains[i], est.frame_samples[i]),
+                doubtful,
+            );
+            c.range_ev = Some([lo, hi]);
+            c.residual_spread = Some(est.residual_spread);
+            c.samples = est.samples;
+            for (i, &k) in flash.iter().enumerate() {
+                cap.frames[k].exposure_gain = Some(est.gains[i]);
+            }
+            c
+        }
+        Err(e) => {
+            let why = e.to_string();
+            warnings.push(format!(
+                "the frames' exposure gains could not be estimated ({why}); frames are taken as equally exposed, so auto-exposure drift would show in the albedo (lock exposure when filming, or pass --fixed-exposure if it was locked)"
+            ));
+            curve(ExposureMode::Failed, &|_| (1.0, 0), Some(why))
+        }
+    }
+}
+
 /// Write everything into `out` (atomically).
 #[allow(clippy::too_many_arguments)]
 pub fn write(
@@ -73,7 +157,7 @@ pub fn write(
     out: &Path,
     overwrite: bool,
     mut timings: Vec<(String, f64)>,
-    warnings: Vec<String>,
+    mut warnings: Vec<String>,
     self_check: Vec<crate::selfcheck::FrameCheck>,
     coverage: f64,
     video_decoding: Option<crate::VideoDecoding>,
@@ -146,8 +230,10 @@ pub fn write(
             },
             camera_position: pose.centre.into(),
             light_position: (*light).into(),
+            exposure_gain: None,
         });
     }
+    let exposure = exposure_gains(&reg, &mut cap, cfg, region, &mut warnings);
     cap.save(dir)?;
 
     // Average-colour panorama (linear average, shown in sRGB) at up to 400 px.
@@ -173,8 +259,9 @@ pub fn write(
                     {
                         let px = f.thumb.pixel(tx as usize, ty as usize);
                         let dst = sum.pixel_mut(c, r);
+                        let inv = 1.0 / frame.gain();
                         for ch in 0..3 {
-                            dst[ch] += srgb_to_linear(f64::from(px[ch]) / 255.0) as f32;
+                            dst[ch] += (inv * srgb_to_linear(f64::from(px[ch]) / 255.0)) as f32;
                         }
                         count[r * grid.width + c] += 1;
                     }
@@ -289,6 +376,7 @@ pub fn write(
         self_check,
         coverage,
         video_decoding,
+        exposure: Some(exposure),
     };
     #[derive(serde::Serialize)]
     struct Record<'a> {

@@ -613,6 +613,7 @@ mod tests {
             },
             camera_position: [0.0, 0.0, 10.0],
             light_position: [0.0, 0.0, 10.0],
+            exposure_gain: None,
         };
         PreparedMapping::new(&frame).unwrap()
     }

@@ -114,6 +114,12 @@ struct SynthArgs {
     /// the edges seen only obliquely).
     #[arg(long)]
     reach: Option<f64>,
+    /// Record the flash video with auto-exposure running, as most phones do with the
+    /// torch on: each frame's gain follows the metered brightness with a 0.4 s lag,
+    /// aiming at this mean linear level (0.18 if given without a value; e.g. 0.18 drifts
+    /// about +-1 EV on a 10-20 cm sweep). The truth records each frame's gain.
+    #[arg(long, num_args = 0..=1, default_missing_value = "0.18", value_name = "TARGET")]
+    auto_exposure: Option<f64>,
     /// Also render a second, no-flash camera at an oblique angle (paper section 3.3).
     #[arg(long)]
     second_camera: bool,
@@ -206,6 +212,10 @@ struct AlignArgs {
     /// Test all frame pairs in coarse alignment (slow; for benchmarks).
     #[arg(long)]
     all_pairs: bool,
+    /// Take every flash frame as recorded at the same exposure instead of estimating
+    /// one gain per frame from overlapping frames (for captures with exposure locked).
+    #[arg(long)]
+    fixed_exposure: bool,
     /// Skip the check of every registered frame against the reference photo (frames
     /// that disagree are then kept, and nothing refuses a drifted registration).
     #[arg(long)]
@@ -301,6 +311,7 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
         })?);
     }
     c.all_pairs = a.all_pairs;
+    c.fixed_exposure = a.fixed_exposure;
     c.self_check.enabled = !a.no_self_check;
     if let Some(v) = a.max_pairs_per_frame {
         c.max_pairs_per_frame = v;
@@ -422,6 +433,9 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     if let Some(t) = &s.second {
         say!("second video: {}", t.describe());
     }
+    if let Some(e) = &s.exposure {
+        say!("{}", e.describe());
+    }
     let (checked, worst) = svbrdf_align::selfcheck::verified(&s.self_check);
     say!(
         "coverage: {:.1}% of the region seen by at least {} kept frames; self-check against the reference photo: {} of {} frames verified, largest median offset {:.2} mm",
@@ -486,6 +500,12 @@ fn synth_config(a: &SynthArgs) -> Result<SynthConfig> {
     }
     if let Some(v) = a.reach {
         c.sweep.reach = v;
+    }
+    if let Some(target) = a.auto_exposure {
+        c.video.auto_exposure = Some(svbrdf_synth::config::AutoExposureSpec {
+            target,
+            ..Default::default()
+        });
     }
     if a.second_camera {
         c.second_camera = Some(c.default_second_camera());

@@ -184,6 +184,10 @@ pub struct RunArgs {
     /// Skip the per-pixel refinement (maps constant within each cluster, as the paper).
     #[arg(long)]
     pub no_refine: bool,
+    /// Take every flash frame as recorded at the same exposure (exposure locked)
+    /// instead of estimating one gain per frame.
+    #[arg(long)]
+    pub fixed_exposure: bool,
     /// Seed of the clustering's random choices.
     #[arg(long)]
     pub seed: Option<u64>,
@@ -222,6 +226,7 @@ impl RunArgs {
             model: "ward".into(),
             fit_config: None,
             no_refine: false,
+            fixed_exposure: false,
             seed: None,
             force: true,
             overwrite: true,
@@ -308,6 +313,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         fine_inlier_px: None,
         subframes: None,
         all_pairs: false,
+        fixed_exposure: a.fixed_exposure,
         no_self_check: false,
         max_pairs_per_frame: None,
         sharpest_within: None,

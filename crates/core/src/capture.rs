@@ -29,6 +29,10 @@ pub const MAX_PX_PER_CM: f64 = 1000.0;
 pub const MAX_REGION_CM: f64 = 500.0;
 /// Largest accepted frame side, pixels (8K video is 7680).
 pub const MAX_FRAME_SIDE: u32 = 16384;
+/// Smallest accepted exposure gain of a frame (6 stops under).
+pub const MIN_EXPOSURE_GAIN: f64 = 1.0 / 64.0;
+/// Largest accepted exposure gain of a frame (6 stops over).
+pub const MAX_EXPOSURE_GAIN: f64 = 64.0;
 
 /// A registered capture (version 1).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -101,6 +105,19 @@ pub struct Frame {
     pub camera_position: [f64; 3],
     /// Light (flash) position, cm.
     pub light_position: [f64; 3],
+    /// Relative exposure of the frame: its linear pixel values are this gain times what
+    /// they would be at gain 1 (auto-exposure, flicker, a torch that dims as it warms).
+    /// Absent: 1 (fixed exposure, or not estimated). The appearance stage divides the
+    /// frame's observations by it. Unitless, in [`MIN_EXPOSURE_GAIN`, `MAX_EXPOSURE_GAIN`].
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub exposure_gain: Option<f64>,
+}
+
+impl Frame {
+    /// The frame's exposure gain (1 when none is recorded).
+    pub fn gain(&self) -> f64 {
+        self.exposure_gain.unwrap_or(1.0)
+    }
 }
 
 /// How a frame's pixels map to the plane.
@@ -404,6 +421,14 @@ impl RegisteredCapture {
                     f.id, f.camera_position[2], f.light_position[2]
                 ));
             }
+            if let Some(g) = f.exposure_gain {
+                if !(MIN_EXPOSURE_GAIN..=MAX_EXPOSURE_GAIN).contains(&g) {
+                    return bad(format!(
+                        "frame {}: exposure_gain {g} (expected a relative gain in [{MIN_EXPOSURE_GAIN}, {MAX_EXPOSURE_GAIN}], or none for fixed exposure)",
+                        f.id
+                    ));
+                }
+            }
             PreparedMapping::new(f).map_err(|e| CoreError::format(path, e.to_string()))?;
         }
         Ok(())
@@ -466,6 +491,7 @@ mod tests {
             mapping,
             camera_position: [1.0, 2.0, 15.0],
             light_position: [2.4, 1.7, 15.0],
+            exposure_gain: None,
         }
     }
 

@@ -215,6 +215,7 @@ pub fn import_materialgan(
             },
             camera_position: cams[k],
             light_position: lights[k],
+            exposure_gain: None,
         });
     }
     cap.validate(&dir.join("camera_pos.txt"))?;

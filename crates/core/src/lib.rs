@@ -22,6 +22,7 @@ pub mod capture;
 pub mod color;
 pub mod confidence;
 mod error;
+pub mod exposure;
 pub mod fsutil;
 pub mod geometry;
 pub mod homography;

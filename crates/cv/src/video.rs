@@ -232,11 +232,26 @@ fn luma_frame_of_mat(bgr: &Mat, thumb_long: u32) -> Result<LumaFrame, CvError> {
     let mut grey = Mat::default();
     opencv::imgproc::cvt_color_def(bgr, &mut grey, opencv::imgproc::COLOR_BGR2GRAY)
         .ctx(|| "converting to grey".into())?;
+    Ok(LumaFrame {
+        luma: crate::mat_to_grey(&grey)?,
+        thumb: linear_thumbnail(bgr, thumb_long)?,
+    })
+}
+
+/// A colour thumbnail (long side `thumb_long`) averaged in linear light and stored
+/// sRGB-coded: averaging the coded values would darken textured areas the more, the
+/// more texture a thumbnail pixel covers, so the same surface would look darker from
+/// farther away (which the exposure estimate would take for a gain).
+fn linear_thumbnail(bgr: &Mat, thumb_long: u32) -> Result<ImageU8, CvError> {
     let long = bgr.cols().max(bgr.rows()).max(1);
     let s = (f64::from(thumb_long) / f64::from(long)).min(1.0);
+    let table = svbrdf_core::color::srgb8_to_linear_table();
+    let lut = Mat::from_slice(&table).ctx(|| "linearisation table".into())?;
+    let mut linear = Mat::default();
+    opencv::core::lut(bgr, &lut, &mut linear).ctx(|| "linearising".into())?;
     let mut small = Mat::default();
     opencv::imgproc::resize(
-        bgr,
+        &linear,
         &mut small,
         opencv::core::Size::new(
             ((f64::from(bgr.cols()) * s).round() as i32).max(1),
@@ -247,10 +262,22 @@ fn luma_frame_of_mat(bgr: &Mat, thumb_long: u32) -> Result<LumaFrame, CvError> {
         opencv::imgproc::INTER_AREA,
     )
     .ctx(|| "thumbnail".into())?;
-    Ok(LumaFrame {
-        luma: crate::mat_to_grey(&grey)?,
-        thumb: mat_to_rgb(&small)?,
-    })
+    let small = if small.is_continuous() {
+        small
+    } else {
+        small.try_clone().ctx(|| "thumbnail".into())?
+    };
+    let (w, h) = (small.cols() as usize, small.rows() as usize);
+    let data: &[opencv::core::Vec3f] = small.data_typed().ctx(|| "thumbnail".into())?;
+    let enc = svbrdf_core::color::Srgb8Encoder::new();
+    let mut out = ImageU8::new(w, h, 3);
+    for (dst, src) in out.data.chunks_exact_mut(3).zip(data) {
+        // BGR in, RGB out.
+        for c in 0..3 {
+            dst[c] = enc.encode(f64::from(src[2 - c]));
+        }
+    }
+    Ok(out)
 }
 
 /// [`LumaFrame`] of an RGB image (still photos, or a frame already decoded).

@@ -56,9 +56,10 @@ impl PixelBatch {
                 [dl.x as f32, dl.y as f32, dl.z as f32],
                 [dv.x as f32, dv.y as f32, dv.z as f32],
             );
+            let inv = (1.0 / f.gain) as f32;
             for (k, v) in obs.rgb[o].iter().enumerate() {
                 let clipped = *v == CLIPPED;
-                self.rgb[k][i] = if clipped { sat } else { f32::from(*v) * scale };
+                self.rgb[k][i] = inv * if clipped { sat } else { f32::from(*v) * scale };
                 self.censor[k][i] = if clipped { 1.0 } else { 0.0 };
             }
             self.frame.push(fr);
@@ -591,6 +592,7 @@ mod tests {
                     id: i,
                     camera,
                     light: camera + Vec3::new(1.3, -0.2, 0.0),
+                    gain: 1.0,
                 }
             })
             .collect();

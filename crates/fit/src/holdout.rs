@@ -424,11 +424,12 @@ pub fn evaluate_holdout(
         let f = &held.frames[k];
         let mapping = PreparedMapping::new(f)?;
         let (photo, mask) = rectify(&mapping, &img, &maps.grid);
+        // The held-out frame's own exposure scales what it shows.
         let ours = relight(
             &maps.grid,
             &maps.params,
             model,
-            intensity,
+            intensity.map(|i| i * f.gain()),
             Vec3::from(f.light_position),
             Vec3::from(f.camera_position),
         );

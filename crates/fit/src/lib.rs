@@ -837,6 +837,7 @@ mod tests {
                 id: i,
                 camera,
                 light: camera + Vec3::new(1.4, -0.3, 0.0),
+                gain: 1.0,
             });
         }
         let obs = observations::rendered(

@@ -48,6 +48,10 @@ pub struct FrameGeometry {
     pub camera: Vec3,
     /// Light position, cm.
     pub light: Vec3,
+    /// Exposure gain of the frame (the capture's `exposure_gain`, 1 when fixed): stored
+    /// colours are divided by it when read, and a clipped channel means "at least the
+    /// saturation threshold / gain".
+    pub gain: f64,
 }
 
 /// All observations of a capture on an output grid.
@@ -98,15 +102,16 @@ impl Observations {
         self.start[px + 1] - self.start[px]
     }
 
-    /// Linear colour of observation `o` (a clipped channel reads as the saturation
-    /// threshold).
+    /// Linear colour of observation `o` at gain 1 (divided by its frame's exposure
+    /// gain; a clipped channel reads as the saturation threshold over that gain).
     #[inline]
     pub fn color(&self, o: usize) -> [f64; 3] {
+        let inv = 1.0 / self.frames[usize::from(self.frame[o])].gain;
         self.rgb[o].map(|v| {
             if v == CLIPPED {
-                self.saturation
+                self.saturation * inv
             } else {
-                f64::from(v) / RGB_SCALE
+                f64::from(v) / RGB_SCALE * inv
             }
         })
     }
@@ -264,6 +269,7 @@ impl ObservationBuilder {
                     id: f.id,
                     camera: Vec3::from(f.camera_position),
                     light: Vec3::from(f.light_position),
+                    gain: f.gain(),
                 })
                 .collect(),
             sizes: capture.frames.iter().map(|f| (f.width, f.height)).collect(),

@@ -72,6 +72,42 @@ pub struct VideoSpec {
     /// tagged so (false: BT.601, untagged, what FFmpeg assumes).
     #[serde(default)]
     pub bt709: bool,
+    /// Auto-exposure as phones run it with the torch on (None: exposure locked, every
+    /// frame at gain 1).
+    #[serde(default)]
+    pub auto_exposure: Option<AutoExposureSpec>,
+}
+
+/// A phone's auto-exposure: each frame is metered (mean linear level of what the
+/// sensor sees at gain 1) and the gain moves towards `target / metered` with a lag,
+/// so the brightness of the recorded video drifts as the phone moves closer and
+/// farther (the flash's 1/d^2) and over bright or dark parts of the surface.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct AutoExposureSpec {
+    /// Mean linear level the metering aims for, in (0, 1).
+    pub target: f64,
+    /// Time constant of the metering's response, seconds (>= 0; 0: instant).
+    pub lag_s: f64,
+    /// Largest gain change either way, EV (stops), > 0.
+    pub max_ev: f64,
+    /// Slow wander of the level aimed at, EV amplitude (>= 0): one period over the
+    /// recording, seeded phase (a torch dimming as it warms, the app's exposure
+    /// hunting). Makes the drift large even where the camera's distance varies little.
+    #[serde(default)]
+    pub wander_ev: f64,
+}
+
+impl Default for AutoExposureSpec {
+    /// A phone's default: aims at 18% grey, reacts within about 0.4 s, +-3 EV, and
+    /// the aim wanders by +-1 EV over the recording.
+    fn default() -> Self {
+        Self {
+            target: 0.18,
+            lag_s: 0.4,
+            max_ev: 3.0,
+            wander_ev: 1.0,
+        }
+    }
 }
 
 /// The hand-held sweep of the flash camera.
@@ -268,6 +304,7 @@ impl SynthConfig {
                 breathing: 0.01,
                 k1_spread: 0.0,
                 bt709: false,
+                auto_exposure: None,
             },
             sweep: SweepSpec {
                 distance_min_cm: 7.0,
@@ -350,6 +387,7 @@ impl SynthConfig {
                 k1: 0.0,
                 k1_spread: 0.05,
                 bt709: true,
+                auto_exposure: None,
                 ..Self::tiny().video
             },
             sweep: SweepSpec {
@@ -527,6 +565,36 @@ impl SynthConfig {
                 format!("k1={} k2={}", v.k1, v.k2),
                 "|k1|, |k2| < 0.5",
             ));
+        }
+        if let Some(ae) = &v.auto_exposure {
+            if !(ae.target > 0.0 && ae.target < 1.0) {
+                return Err(SynthError::invalid(
+                    "auto-exposure target",
+                    ae.target,
+                    "a mean linear level in (0, 1)",
+                ));
+            }
+            if !(ae.lag_s >= 0.0 && ae.lag_s <= 10.0) {
+                return Err(SynthError::invalid(
+                    "auto-exposure lag",
+                    ae.lag_s,
+                    "seconds in [0, 10]",
+                ));
+            }
+            if !(0.0..=3.0).contains(&ae.wander_ev) {
+                return Err(SynthError::invalid(
+                    "auto-exposure wander",
+                    ae.wander_ev,
+                    "stops in [0, 3]",
+                ));
+            }
+            if !(ae.max_ev > 0.0 && ae.max_ev <= 6.0) {
+                return Err(SynthError::invalid(
+                    "auto-exposure range",
+                    ae.max_ev,
+                    "stops in (0, 6]",
+                ));
+            }
         }
         if !(0.0..0.2).contains(&v.breathing) {
             return Err(SynthError::invalid(

@@ -277,6 +277,8 @@ pub fn synthesize(
         VideoWriter::create(&dir.join("flash.mp4"), v.fps, v.width, v.height)?
     };
     let mut flash_frames = Vec::with_capacity(n_frames as usize);
+    let mut auto_exposure = AutoExposure::default();
+    let wander_phase = (cfg.seed % 1000) as f64 * 0.618_034 * std::f64::consts::TAU;
     progress.stage("flash video", n_frames);
     for i in 0..n_frames {
         let t = i as f64 / v.fps;
@@ -303,7 +305,19 @@ pub fn synthesize(
                 first_lit_row: 0,
             }]
         };
-        let lin = render_linear(&scene, &exposures, lighting, 1);
+        let mut lin = render_linear(&scene, &exposures, lighting, 1);
+        let gain = match &v.auto_exposure {
+            Some(ae) => {
+                let wander =
+                    ae.wander_ev * (std::f64::consts::TAU * t / v.duration_s + wander_phase).sin();
+                let g = auto_exposure.step(ae, mean_level(&lin), wander, 1.0 / v.fps);
+                for x in &mut lin.data {
+                    *x *= g as f32;
+                }
+                g
+            }
+            None => 1.0,
+        };
         writer.write(&expose(
             &lin,
             cfg.light.shot_noise,
@@ -319,6 +333,7 @@ pub fn synthesize(
             first_lit_row: None,
             motion_blur: blurred,
             markers_visible: visible_markers(&cam, &scene),
+            exposure_gain: gain,
         });
         progress.advance(1);
     }
@@ -447,6 +462,37 @@ pub fn synthesize(
     Ok(summary)
 }
 
+/// Mean linear level of a frame at gain 1 (what a phone's metering sees).
+fn mean_level(img: &svbrdf_core::image::ImageF32) -> f64 {
+    let n = img.data.len().max(1);
+    img.data.iter().map(|v| f64::from(*v)).sum::<f64>() / n as f64
+}
+
+/// The state of a simulated auto-exposure loop.
+#[derive(Debug, Default)]
+struct AutoExposure {
+    /// Current gain, log2 (EV); `None` before the first frame.
+    ev: Option<f64>,
+}
+
+impl AutoExposure {
+    /// The gain of the next frame, `dt` seconds after the last, when the sensor sees
+    /// a mean level `metered` at gain 1: the gain moves towards `target / metered` with
+    /// time constant `lag_s` (a phone's metering reacts to the frames it has seen),
+    /// plus `wander` EV, clamped to +-`max_ev`. The first frame starts converged.
+    fn step(&mut self, spec: &config::AutoExposureSpec, metered: f64, wander: f64, dt: f64) -> f64 {
+        let want =
+            ((spec.target / metered.max(1e-6)).log2() + wander).clamp(-spec.max_ev, spec.max_ev);
+        let ev = match self.ev {
+            None => want,
+            Some(ev) if spec.lag_s > 0.0 => ev + (1.0 - (-dt / spec.lag_s).exp()) * (want - ev),
+            Some(_) => want,
+        };
+        self.ev = Some(ev);
+        ev.exp2()
+    }
+}
+
 #[allow(clippy::too_many_arguments)]
 fn render_second_camera(
     cfg: &SynthConfig,
@@ -529,6 +575,7 @@ fn render_second_camera(
             first_lit_row: first_lit.map(|r| r.min(sc.height as usize) as u32),
             motion_blur: false,
             markers_visible: visible_markers(&cam, scene),
+            exposure_gain: 1.0,
         });
         progress.advance(1);
     }
@@ -628,6 +675,7 @@ fn render_photos(
             first_lit_row: None,
             motion_blur: false,
             markers_visible: visible_markers(&cam, scene),
+            exposure_gain: 1.0,
         });
         progress.advance(1);
     }
@@ -894,6 +942,7 @@ pub fn registered_from_truth(truth: &GroundTruth, cfg: &SynthConfig) -> Register
                 },
                 camera_position: f.camera.position,
                 light_position: light,
+                exposure_gain: (f.exposure_gain != 1.0).then_some(f.exposure_gain),
             });
             id += 1;
         }

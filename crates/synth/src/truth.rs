@@ -113,6 +113,13 @@ pub struct FrameTruth {
     pub motion_blur: bool,
     /// Ids of markers whose four corners are inside the frame.
     pub markers_visible: Vec<i32>,
+    /// Exposure gain the frame was recorded at (auto-exposure; 1 when locked).
+    #[serde(default = "unit_gain")]
+    pub exposure_gain: f64,
+}
+
+fn unit_gain() -> f64 {
+    1.0
 }
 
 /// File name, inside `photos/`, of the simulator's flash photo `index`.
