@@ -27,6 +27,8 @@ pub const TRAJECTORY: &str = "trajectory.png";
 pub const CONNECTIVITY: &str = "connectivity.png";
 /// Summary and settings.
 pub const SUMMARY: &str = "align.json";
+/// Exposure gain curve picture.
+pub const EXPOSURE: &str = "exposure.png";
 
 fn dot(img: &mut ImageF32, x: f64, y: f64, r: f64, rgb: [f32; 3]) {
     let (x0, x1) = (
@@ -144,6 +146,42 @@ fn exposure_gains(
             curve(ExposureMode::Failed, &|_| (1.0, 0), Some(why))
         }
     }
+}
+
+/// The gain curve as a picture: time left to right, gain bottom to top (log scale),
+/// grey lines every stop, the brighter one at the geometric mean; dots blue where the
+/// frame had its own estimate, orange where it was interpolated.
+fn gain_plot(curve: &ExposureCurve) -> ImageF32 {
+    let (w, h) = (480usize, 160usize);
+    let mut img = ImageF32::new(w, h, 3);
+    img.data.iter_mut().for_each(|v| *v = 0.04);
+    let ev: Vec<f64> = curve.frames.iter().map(|f| f.gain.log2()).collect();
+    let span = ev
+        .iter()
+        .fold(1.0f64, |m, v| m.max(v.abs()))
+        .ceil()
+        .min(6.0);
+    let y_of = |e: f64| (0.5 - 0.45 * e / span) * h as f64;
+    let mut stop = -span;
+    while stop <= span + 1e-9 {
+        let y = y_of(stop).round().clamp(0.0, (h - 1) as f64) as usize;
+        let v = if stop.abs() < 1e-9 { 0.5 } else { 0.18 };
+        for x in 0..w {
+            img.pixel_mut(x, y).copy_from_slice(&[v, v, v]);
+        }
+        stop += 1.0;
+    }
+    let n = curve.frames.len().max(2) - 1;
+    for (k, (f, e)) in curve.frames.iter().zip(&ev).enumerate() {
+        let x = 6.0 + (w as f64 - 12.0) * k as f64 / n as f64;
+        let colour = if f.samples > 0 {
+            [0.2, 0.5, 1.0]
+        } else {
+            [1.0, 0.6, 0.1]
+        };
+        dot(&mut img, x, y_of(*e), 2.0, colour);
+    }
+    img
 }
 
 /// Write everything into `out` (atomically).
@@ -323,6 +361,15 @@ pub fn write(
         &meta("camera_blue_flash_yellow_markers_red"),
     )?;
     progress.advance(1);
+
+    // Exposure gain curve: one dot per flash frame over time, lines every 1 EV.
+    write_png(
+        &dir.join(EXPOSURE),
+        &gain_plot(&exposure),
+        Encoding::Srgb,
+        PngDepth::Eight,
+        &meta("exposure_gain_per_frame_ev_lines_every_stop"),
+    )?;
 
     // Connectivity map: grey = tested and matched, white = kept after filtering.
     let n = reg.connectivity.frames.max(1);

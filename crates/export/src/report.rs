@@ -438,6 +438,23 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
                 ),
             ));
         }
+        let e = &a["summary"]["exposure"];
+        if e.is_object() {
+            let text = match (e["mode"].as_str(), e["range_ev"].as_array()) {
+                (Some("estimated"), Some(r)) if r.len() == 2 => format!(
+                    "one gain per frame estimated from overlapping frames: {:+.2} to {:+.2} EV around the mean (residual spread {:.1}%); each frame's observations are divided by its gain",
+                    r[0].as_f64().unwrap_or(0.0),
+                    r[1].as_f64().unwrap_or(0.0),
+                    100.0 * e["residual_spread"].as_f64().unwrap_or(0.0)
+                ),
+                (Some("fixed"), _) => "assumed fixed (--fixed-exposure)".into(),
+                _ => format!(
+                    "not estimated ({}): frames taken as equally exposed",
+                    e["note"].as_str().unwrap_or("no reason recorded")
+                ),
+            };
+            rows.push(("exposure".into(), text));
+        }
         let v = &a["summary"]["video_decoding"];
         if v.is_object() {
             rows.push((
@@ -621,6 +638,10 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
             (
                 "connectivity.png",
                 "connectivity map: frame pairs that overlap",
+            ),
+            (
+                "exposure.png",
+                "exposure gain per flash frame over time (lines every stop, the brighter one at the mean; orange: interpolated); the fit divides each frame by its gain",
             ),
         ]
         .iter()

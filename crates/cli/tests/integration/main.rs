@@ -5,6 +5,7 @@ mod align;
 mod bad_input;
 mod consistency;
 mod eval;
+mod exposure;
 mod fit;
 mod hostile;
 mod photos;
