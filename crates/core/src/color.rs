@@ -205,3 +205,160 @@ mod ycbcr_tests {
         assert!((fix * wrong - rgb).norm() < 1e-12);
     }
 }
+
+impl YcbcrMatrix {
+    /// ITU-R BT.2020 non-constant luminance (HDR and wide-gamut video).
+    pub const BT2020: Self = Self {
+        kr: 0.2627,
+        kb: 0.0593,
+    };
+}
+
+/// Transfer characteristic of a video stream: how its R'G'B' code values relate to
+/// linear light.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Transfer {
+    /// SDR (BT.709, BT.601 or sRGB tags, or untagged): decoded with the sRGB curve,
+    /// linear 1 = the format's white.
+    Sdr,
+    /// Hybrid log-gamma (ARIB STD-B67, BT.2100): scene light, linear 1 = the format's
+    /// peak; its reference white (75% signal) is [`HLG_REFERENCE_WHITE`].
+    Hlg,
+    /// Perceptual quantiser (SMPTE ST 2084, BT.2100): display light, linear 1 =
+    /// [`PQ_UNIT_NITS`] cd/m^2; brighter values are clipped.
+    Pq,
+}
+
+/// Linear level of HLG's reference white (75% signal), with the peak at 1.
+pub const HLG_REFERENCE_WHITE: f64 = 0.264_962_5;
+/// PQ luminance that decodes to linear 1, cd/m^2 (a phone's HDR10 mastering peak).
+pub const PQ_UNIT_NITS: f64 = 1000.0;
+/// PQ luminance of reference (graphics) white, cd/m^2 (ITU-R BT.2408).
+pub const PQ_REFERENCE_WHITE_NITS: f64 = 203.0;
+
+const HLG_A: f64 = 0.178_832_77;
+const HLG_B: f64 = 0.284_668_92;
+const HLG_C: f64 = 0.559_910_73;
+const PQ_M1: f64 = 0.159_301_757_812_5;
+const PQ_M2: f64 = 78.843_75;
+const PQ_C1: f64 = 0.835_937_5;
+const PQ_C2: f64 = 18.851_562_5;
+const PQ_C3: f64 = 18.6875;
+
+impl Transfer {
+    /// Linear value of a non-linear code value `v` in [0, 1].
+    pub fn to_linear(self, v: f64) -> f64 {
+        let v = v.clamp(0.0, 1.0);
+        match self {
+            Self::Sdr => srgb_to_linear(v),
+            Self::Hlg => {
+                if v <= 0.5 {
+                    v * v / 3.0
+                } else {
+                    (((v - HLG_C) / HLG_A).exp() + HLG_B) / 12.0
+                }
+            }
+            Self::Pq => {
+                let p = v.powf(1.0 / PQ_M2);
+                let nits =
+                    10_000.0 * ((p - PQ_C1).max(0.0) / (PQ_C2 - PQ_C3 * p)).powf(1.0 / PQ_M1);
+                (nits / PQ_UNIT_NITS).min(1.0)
+            }
+        }
+    }
+
+    /// Non-linear code value in [0, 1] of a linear value (the inverse of
+    /// [`to_linear`](Self::to_linear); values above the range clip).
+    pub fn from_linear(self, l: f64) -> f64 {
+        let l = l.clamp(0.0, 1.0);
+        match self {
+            Self::Sdr => linear_to_srgb(l),
+            Self::Hlg => {
+                if l <= 1.0 / 12.0 {
+                    (3.0 * l).sqrt()
+                } else {
+                    HLG_A * (12.0 * l - HLG_B).ln() + HLG_C
+                }
+            }
+            Self::Pq => {
+                let y = (l * PQ_UNIT_NITS / 10_000.0).powf(PQ_M1);
+                ((PQ_C1 + PQ_C2 * y) / (1.0 + PQ_C3 * y)).powf(PQ_M2)
+            }
+        }
+    }
+
+    /// Linear level of the format's reference (diffuse) white: 1 for SDR.
+    pub fn reference_white(self) -> f64 {
+        match self {
+            Self::Sdr => 1.0,
+            Self::Hlg => HLG_REFERENCE_WHITE,
+            Self::Pq => PQ_REFERENCE_WHITE_NITS / PQ_UNIT_NITS,
+        }
+    }
+
+    /// Name for people.
+    pub fn label(self) -> &'static str {
+        match self {
+            Self::Sdr => "SDR (sRGB curve)",
+            Self::Hlg => "HLG",
+            Self::Pq => "PQ",
+        }
+    }
+}
+
+/// Linear BT.2020 RGB to linear BT.709/sRGB RGB (same D65 white; ITU-R BT.2087).
+pub const BT2020_TO_BT709: [[f64; 3]; 3] = [
+    [1.660_491, -0.587_641, -0.072_850],
+    [-0.124_550, 1.132_900, -0.008_349],
+    [-0.018_151, -0.100_579, 1.118_730],
+];
+
+/// Linear BT.709/sRGB RGB to linear BT.2020 RGB (the inverse of [`BT2020_TO_BT709`]).
+pub const BT709_TO_BT2020: [[f64; 3]; 3] = [
+    [0.627_404, 0.329_283, 0.043_313],
+    [0.069_097, 0.919_541, 0.011_362],
+    [0.016_391, 0.088_013, 0.895_595],
+];
+
+/// `m * v` for a row-major 3x3.
+pub fn mul3(m: &[[f64; 3]; 3], v: [f64; 3]) -> [f64; 3] {
+    [0, 1, 2].map(|r| m[r][0] * v[0] + m[r][1] * v[1] + m[r][2] * v[2])
+}
+
+#[cfg(test)]
+mod hdr_tests {
+    use super::*;
+
+    #[test]
+    fn transfer_curves_invert_and_hit_their_reference_points() {
+        for t in [Transfer::Sdr, Transfer::Hlg, Transfer::Pq] {
+            for k in 0..=100 {
+                let v = k as f64 / 100.0;
+                let back = t.from_linear(t.to_linear(v));
+                assert!(
+                    (back - v).abs() < 1e-6 || t.to_linear(v) >= 1.0,
+                    "{t:?} {v} {back}"
+                );
+            }
+        }
+        // HLG: 50% signal is 1/12 of the peak, 75% is reference white, 100% the peak.
+        assert!((Transfer::Hlg.to_linear(0.5) - 1.0 / 12.0).abs() < 1e-12);
+        assert!((Transfer::Hlg.to_linear(0.75) - HLG_REFERENCE_WHITE).abs() < 1e-6);
+        assert!((Transfer::Hlg.to_linear(1.0) - 1.0).abs() < 1e-6);
+        // PQ: 203 cd/m^2 at 58% signal (BT.2408), 1000 cd/m^2 at 75.2%.
+        assert!((Transfer::Pq.from_linear(0.203) - 0.5807).abs() < 1e-3);
+        assert!((Transfer::Pq.from_linear(1.0) - 0.7518).abs() < 1e-3);
+    }
+
+    #[test]
+    fn the_primaries_matrices_invert_and_keep_white() {
+        let w = mul3(&BT2020_TO_BT709, [1.0, 1.0, 1.0]);
+        assert!(w.iter().all(|v| (v - 1.0).abs() < 1e-5), "{w:?}");
+        let rgb = [0.3, 0.6, 0.2];
+        let back = mul3(&BT2020_TO_BT709, mul3(&BT709_TO_BT2020, rgb));
+        for k in 0..3 {
+            assert!((back[k] - rgb[k]).abs() < 1e-5, "{back:?}");
+        }
+    }
+}
