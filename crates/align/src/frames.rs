@@ -215,6 +215,9 @@ pub fn decode_frames(
     let (tx, rx) =
         std::sync::mpsc::sync_channel::<Result<(u64, LumaFrame), AlignError>>(batch_size);
     let mut out = Vec::new();
+    // Each decoded frame's time from the stream (variable frame rates keep theirs).
+    let times = std::sync::Mutex::new(std::collections::HashMap::<u64, f64>::new());
+    let times_ref = &times;
     std::thread::scope(|scope| -> Result<(), AlignError> {
         scope.spawn(move || loop {
             let idx = reader.next_index();
@@ -231,6 +234,9 @@ pub fn decode_frames(
             };
             match frame {
                 Ok(Some(f)) => {
+                    if let Ok(mut t) = times_ref.lock() {
+                        t.insert(idx, reader.time_s());
+                    }
                     if tx.send(Ok((idx, f))).is_err() {
                         return;
                     }
@@ -296,6 +302,13 @@ pub fn decode_frames(
         Ok(())
     })?;
     progress.finish();
+    if let Ok(t) = times.lock() {
+        for f in &mut out {
+            if let Some(time) = t.get(&f.index) {
+                f.time_s = *time;
+            }
+        }
+    }
     if out.is_empty() {
         return Err(AlignError::Video(format!(
             "{}: no frames could be decoded",

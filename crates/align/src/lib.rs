@@ -193,14 +193,35 @@ pub struct VideoDecoding {
     pub range_tag: Option<String>,
     /// Its transfer tag.
     pub transfer_tag: Option<String>,
-    /// The Y'CbCr matrix the frames were decoded with (`bt709` where tagged so,
-    /// else `bt601`), then taken as sRGB-encoded R'G'B'.
+    /// The Y'CbCr matrix the frames were decoded with (`bt709` or `bt2020` where
+    /// tagged so, else `bt601`).
     pub decoded_with: svbrdf_cv::probe::DecodingMatrix,
+    /// Its primaries tag.
+    #[serde(default)]
+    pub primaries_tag: Option<String>,
+    /// Bits per sample.
+    #[serde(default)]
+    pub bit_depth: u32,
+    /// How R'G'B' became linear light: `sdr` (the sRGB curve), `hlg` or `pq`.
+    #[serde(default = "sdr_transfer")]
+    pub transfer: svbrdf_core::color::Transfer,
+    /// Whether BT.2020 primaries were converted to BT.709 in linear light.
+    #[serde(default)]
+    pub from_bt2020: bool,
+    /// `opencv` (8-bit SDR: 8 bits kept) or `ffmpeg-libraries` (10-bit and HDR:
+    /// linear floats kept through to the observations).
+    #[serde(default)]
+    pub decoder: String,
+}
+
+fn sdr_transfer() -> svbrdf_core::color::Transfer {
+    svbrdf_core::color::Transfer::Sdr
 }
 
 impl VideoDecoding {
     /// From FFmpeg's description of the stream.
     pub fn of(p: &svbrdf_cv::probe::VideoProbe) -> Self {
+        let linear = p.needs_linear_decoding();
         Self {
             codec: p.codec.clone(),
             pix_fmt: p.pix_fmt.clone(),
@@ -208,6 +229,15 @@ impl VideoDecoding {
             range_tag: p.range.clone(),
             transfer_tag: p.transfer.clone(),
             decoded_with: p.decoding_matrix(),
+            primaries_tag: p.primaries.clone(),
+            bit_depth: p.bit_depth,
+            transfer: match p.transfer.as_deref() {
+                Some("arib-std-b67") => svbrdf_core::color::Transfer::Hlg,
+                Some("smpte2084") => svbrdf_core::color::Transfer::Pq,
+                _ => svbrdf_core::color::Transfer::Sdr,
+            },
+            from_bt2020: linear && p.primaries.as_deref() == Some("bt2020"),
+            decoder: if linear { "ffmpeg-libraries" } else { "opencv" }.into(),
         }
     }
 }
@@ -443,14 +473,6 @@ pub fn align(
             "only {:.1}% of the region is seen by at least {COVERAGE_VIEWS} registered frames; thin: {missed}; those parts will be filled from neighbouring clusters, not measured",
             100.0 * covered
         ));
-    }
-    if let Some(probe) = &probe {
-        if probe.bit_depth > 8 {
-            warnings.push(format!(
-                "the video is {}-bit ({}); it is decoded to 8 bits per channel, so highlights and shadows keep less precision than recorded",
-                probe.bit_depth, probe.pix_fmt
-            ));
-        }
     }
     if sweep_cm < 3.0 * MIN_SWEEP_CM {
         warnings.push(format!(

@@ -75,6 +75,8 @@ pub struct StreamInfo {
     pub primaries: Primaries,
     /// Stream time base, seconds per tick.
     pub time_base: f64,
+    /// Average frame rate the stream states, frames per second (0: unknown).
+    pub fps: f64,
     /// Frame count the container states (0: unknown).
     pub stated_frames: u64,
 }
@@ -145,7 +147,7 @@ impl AvReader {
         ff::util::log::set_level(ff::util::log::Level::Error);
         let input = ff::format::input(&path)
             .map_err(|e| file_error(path, format!("not a video FFmpeg can read ({e})")))?;
-        let (stream, params, time_base, stated, rotation) = {
+        let (stream, params, time_base, stated, rotation, fps) = {
             let s = input
                 .streams()
                 .best(ff::media::Type::Video)
@@ -161,6 +163,14 @@ impl AvReader {
                 f64::from(tb.numerator()) / f64::from(tb.denominator().max(1)),
                 s.frames().max(0) as u64,
                 rotation,
+                {
+                    let r = s.avg_frame_rate();
+                    if r.denominator() > 0 {
+                        f64::from(r.numerator()) / f64::from(r.denominator())
+                    } else {
+                        0.0
+                    }
+                },
             )
         };
         let rotation_deg = match rotation {
@@ -260,6 +270,7 @@ impl AvReader {
             transfer,
             primaries,
             time_base,
+            fps,
             stated_frames: stated,
         };
         let lut = convert::transfer_table(transfer);

@@ -311,10 +311,17 @@ pub fn load_truth(synth_dir: &std::path::Path) -> Result<svbrdf_fit::evaluate::T
     let truth: svbrdf_synth::truth::GroundTruth =
         svbrdf_core::fsutil::read_json(&gt_dir.join("truth.json"))?;
     let read = |f: &str| read_image_linear(&gt_dir.join(f), Encoding::Linear);
+    // The held-out images in the decoder's linear units: an HDR video puts the
+    // simulator's white at its format's reference white (HLG 0.265, PQ 0.203).
+    let white = truth.config.video.format.white();
     let mut holdout = Vec::new();
     for h in &truth.holdout {
+        let mut img = read(&h.exr)?;
+        if white != 1.0 {
+            img.data.iter_mut().for_each(|v| *v *= white as f32);
+        }
         holdout.push((
-            read(&h.exr)?,
+            img,
             Vec3::from(h.light_position),
             Vec3::from(h.camera_position),
         ));
@@ -325,7 +332,7 @@ pub fn load_truth(synth_dir: &std::path::Path) -> Result<svbrdf_fit::evaluate::T
         specular: read(&truth.maps.specular)?,
         roughness: read(&truth.maps.roughness)?,
         normal: read(&truth.maps.normal)?,
-        light_intensity: truth.light_intensity,
+        light_intensity: truth.light_intensity * white,
         mask: read(&truth.maps.mask)?,
         holdout,
     })

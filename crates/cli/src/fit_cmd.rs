@@ -115,9 +115,16 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
     let s = &run.manifest.summary;
     say!("wrote {}", run.out.display());
     say!(
-        "observations: {} ({} with a clipped channel); {} of {} pixels observed at least {} times",
+        "observations: {} ({} with a clipped channel{}); {} of {} pixels observed at least {} times",
         s.observations,
         s.clipped_observations,
+        s.clipped_near_mirror
+            .map(|c| format!(
+                ", {:.0}% of those within {} degrees of the mirror direction",
+                100.0 * c,
+                svbrdf_fit::NEAR_MIRROR_DEG
+            ))
+            .unwrap_or_default(),
         s.covered_pixels,
         s.pixels,
         cfg.min_observations

@@ -120,6 +120,14 @@ struct SynthArgs {
     /// about +-1 EV on a 10-20 cm sweep). The truth records each frame's gain.
     #[arg(long, num_args = 0..=1, default_missing_value = "0.18", value_name = "TARGET")]
     auto_exposure: Option<f64>,
+    /// How the flash video is stored: h264-sdr8 (default), hevc-sdr10, hevc-hlg
+    /// (10-bit HLG, BT.2020, as iPhones record by default) or hevc-pq (HDR10).
+    #[arg(long, value_parser = ["h264-sdr8", "hevc-sdr10", "hevc-hlg", "hevc-pq"])]
+    video_format: Option<String>,
+    /// Variable frame rate: frame n is taken and stamped at n / fps + J sin(1.7 n)
+    /// seconds, J this many seconds (less than 0.4 frame intervals).
+    #[arg(long, value_name = "J")]
+    frame_jitter: Option<f64>,
     /// Also render a second, no-flash camera at an oblique angle (paper section 3.3).
     #[arg(long)]
     second_camera: bool,
@@ -420,14 +428,26 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     );
     if let Some(v) = &s.video_decoding {
         say!(
-            "video: {} {}, matrix {}, range {}: decoded with {}",
+            "video: {} {}, matrix {}, range {}: decoded with {}, transfer {}{}, {} bits kept ({})",
             v.codec,
             v.pix_fmt,
             v.matrix_tag.as_deref().unwrap_or("untagged"),
             v.range_tag
                 .as_deref()
                 .unwrap_or("untagged (limited assumed)"),
-            v.decoded_with.label()
+            v.decoded_with.label(),
+            v.transfer.label(),
+            if v.from_bt2020 {
+                ", BT.2020 primaries converted to BT.709"
+            } else {
+                ""
+            },
+            if v.decoder == "opencv" {
+                8
+            } else {
+                v.bit_depth
+            },
+            v.decoder
         );
     }
     if let Some(t) = &s.second {
@@ -500,6 +520,12 @@ fn synth_config(a: &SynthArgs) -> Result<SynthConfig> {
     }
     if let Some(v) = a.reach {
         c.sweep.reach = v;
+    }
+    if let Some(f) = &a.video_format {
+        c.video.format = serde_json::from_value(serde_json::Value::String(f.clone()))?;
+    }
+    if let Some(j) = a.frame_jitter {
+        c.video.frame_jitter_s = j;
     }
     if let Some(target) = a.auto_exposure {
         c.video.auto_exposure = Some(svbrdf_synth::config::AutoExposureSpec {

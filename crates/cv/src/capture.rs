@@ -1,8 +1,9 @@
 //! Decoding the frames of a registered capture for the appearance stage. Video sources
 //! are decoded as one forward stream each (frames in index order) on a thread of their
 //! own, one frame ahead of the consumer, so decoding overlaps with the consumer's
-//! work; image sources are read one file at a time. Video frames stay 8-bit sRGB
-//! ([`FrameImage::Srgb8`]); the consumer linearises per sample.
+//! work; image sources are read one file at a time. 8-bit SDR video frames stay 8-bit
+//! sRGB ([`FrameImage::Srgb8`]; the consumer linearises per sample); 10-bit and HDR
+//! frames arrive linear ([`FrameImage::Linear`]).
 
 use std::path::Path;
 use std::sync::mpsc;
@@ -33,7 +34,7 @@ fn decode_video(
                 }
             }
             let idx = reader.next_index();
-            let Some(img) = reader.read()? else {
+            let Some(img) = reader.read_image()? else {
                 return Err(CvError::File {
                     path: path.into(),
                     message: format!(
@@ -41,14 +42,17 @@ fn decode_video(
                     ),
                 });
             };
-            let frame = match encoding {
-                Encoding::Srgb => FrameImage::Srgb8(img),
-                Encoding::Linear => FrameImage::Linear(svbrdf_core::image::ImageF32 {
-                    width: img.width,
-                    height: img.height,
-                    channels: img.channels,
-                    data: img.data.iter().map(|&v| f32::from(v) / 255.0).collect(),
-                }),
+            let frame = match (encoding, img) {
+                (Encoding::Linear, FrameImage::Srgb8(img)) => {
+                    FrameImage::Linear(svbrdf_core::image::ImageF32 {
+                        width: img.width,
+                        height: img.height,
+                        channels: img.channels,
+                        data: img.data.iter().map(|&v| f32::from(v) / 255.0).collect(),
+                    })
+                }
+                // 10-bit and HDR video: linear floats from FFmpeg's libraries.
+                (_, img) => img,
             };
             if tx.send(Ok((k, frame))).is_err() {
                 // The consumer stopped (it failed); nothing more to do.

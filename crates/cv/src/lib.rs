@@ -10,6 +10,7 @@
 
 pub mod aruco;
 pub mod capture;
+pub mod encode;
 pub mod features;
 pub mod probe;
 pub mod video;

@@ -190,6 +190,9 @@ pub enum DecodingMatrix {
     Bt601,
     /// BT.709, as tagged (phones' SDR video).
     Bt709,
+    /// BT.2020 non-constant luminance, as tagged (HDR video; decoded by FFmpeg's
+    /// libraries).
+    Bt2020,
 }
 
 impl DecodingMatrix {
@@ -198,6 +201,7 @@ impl DecodingMatrix {
         match self {
             Self::Bt601 => "BT.601",
             Self::Bt709 => "BT.709",
+            Self::Bt2020 => "BT.2020",
         }
     }
 }
@@ -208,8 +212,23 @@ impl VideoProbe {
     pub fn decoding_matrix(&self) -> DecodingMatrix {
         match self.matrix.as_deref() {
             Some("bt709") => DecodingMatrix::Bt709,
+            Some("bt2020nc") => DecodingMatrix::Bt2020,
+            None if self.primaries.as_deref() == Some("bt2020") => DecodingMatrix::Bt2020,
             _ => DecodingMatrix::Bt601,
         }
+    }
+
+    /// Whether the frames need FFmpeg's libraries to reach linear light right: more
+    /// than 8 bits, an HDR transfer (HLG, PQ) or BT.2020 colours. OpenCV would decode
+    /// them to 8-bit SDR.
+    pub fn needs_linear_decoding(&self) -> bool {
+        self.bit_depth > 8
+            || matches!(
+                self.transfer.as_deref(),
+                Some("arib-std-b67" | "smpte2084" | "bt2020-10" | "bt2020-12")
+            )
+            || matches!(self.primaries.as_deref(), Some("bt2020"))
+            || matches!(self.matrix.as_deref(), Some("bt2020nc" | "bt2020c"))
     }
 
     /// Refuse what the decoder would read wrongly: still images, HDR or wide-gamut
@@ -241,31 +260,9 @@ impl VideoProbe {
                 ),
             ));
         }
-        let hdr_transfer = matches!(
-            self.transfer.as_deref(),
-            Some("arib-std-b67" | "smpte2084" | "smpte428" | "bt2020-10" | "bt2020-12")
-        );
-        let wide = matches!(
-            self.primaries.as_deref(),
-            Some("bt2020" | "smpte432" | "smpte431")
-        );
-        if hdr_transfer || wide {
-            let name = match self.transfer.as_deref() {
-                Some("arib-std-b67") => "HLG HDR",
-                Some("smpte2084") => "PQ (HDR10) HDR",
-                _ => "wide-gamut",
-            };
-            return Err(file_error(
-                path,
-                format!(
-                    "is {name} video (transfer {}, primaries {}, {} {}-bit), which svbrdf cannot yet convert to linear RGB correctly (expected SDR video: BT.709 or sRGB, 8 or 10 bit); record with HDR video off (iPhone: Settings > Camera > Formats > HDR Video off; Android: turn off HDR10/HDR video) or convert it to SDR first",
-                    self.transfer.as_deref().unwrap_or("untagged"),
-                    self.primaries.as_deref().unwrap_or("untagged"),
-                    self.pix_fmt,
-                    self.bit_depth
-                ),
-            ));
-        }
+        // What FFmpeg's libraries cannot bring to linear light right is refused by
+        // `svbrdf_av::AvReader::open` with the tag it found (other transfers, Display
+        // P3 or other primaries, constant-luminance BT.2020).
         if let Some(sar) = &self.sample_aspect_ratio {
             let parts: Vec<f64> = sar.split(':').filter_map(|p| p.parse().ok()).collect();
             if let [n, d] = parts.as_slice() {
@@ -324,29 +321,21 @@ mod tests {
     }
 
     #[test]
-    fn hdr_and_anamorphic_are_refused_with_what_was_found() {
+    fn hdr_goes_to_linear_decoding_and_anamorphic_is_refused() {
         let p = Path::new("v.mov");
-        let e = probe(Some("arib-std-b67"), Some("bt2020"), "1:1")
-            .check_supported(p)
-            .unwrap_err()
-            .to_string();
-        assert!(
-            e.contains("HLG") && e.contains("bt2020") && e.contains("HDR Video off"),
-            "{e}"
-        );
-        let e = probe(Some("smpte2084"), Some("bt2020"), "1:1")
-            .check_supported(p)
-            .unwrap_err()
-            .to_string();
-        assert!(e.contains("PQ"), "{e}");
+        let hlg = probe(Some("arib-std-b67"), Some("bt2020"), "1:1");
+        assert!(hlg.check_supported(p).is_ok());
+        assert!(hlg.needs_linear_decoding());
+        assert_eq!(hlg.decoding_matrix(), DecodingMatrix::Bt2020);
+        let mut sdr8 = probe(Some("bt709"), Some("bt709"), "1:1");
+        sdr8.bit_depth = 8;
+        sdr8.pix_fmt = "yuv420p".into();
+        assert!(!sdr8.needs_linear_decoding());
         let e = probe(Some("bt709"), Some("bt709"), "4:3")
             .check_supported(p)
             .unwrap_err()
             .to_string();
         assert!(e.contains("anamorphic"), "{e}");
-        assert!(probe(Some("bt709"), Some("bt709"), "1:1")
-            .check_supported(p)
-            .is_ok());
         assert!(probe(None, None, "0:1").check_supported(p).is_ok());
     }
 }

@@ -1,15 +1,18 @@
-//! Video decoding and encoding through OpenCV's FFmpeg backend.
+//! Video decoding and encoding.
 //!
 //! Decoding is a stream: one frame in memory at a time. Frames come out upright
-//! (rotation metadata applied) as 8-bit sRGB-encoded RGB.
+//! (rotation metadata applied). 8-bit SDR video is decoded by OpenCV's FFmpeg backend
+//! to 8-bit sRGB-coded RGB (with the stream's BT.709 matrix corrected for); 10-bit
+//! and HDR video (HLG, PQ, BT.2020) by FFmpeg's libraries directly (`svbrdf-av`) to
+//! linear RGB floats, so their extra precision and headroom reach the observations.
 
 use std::path::{Path, PathBuf};
 
 use opencv::core::{Mat, Size};
 use opencv::prelude::*;
 use opencv::videoio;
-use svbrdf_core::color::YcbcrMatrix;
-use svbrdf_core::image::ImageU8;
+use svbrdf_core::color::{Srgb8Encoder, YcbcrMatrix};
+use svbrdf_core::image::{FrameImage, ImageF32, ImageU8};
 
 use crate::probe::DecodingMatrix;
 use crate::{mat_to_rgb, rgb_to_mat, Context, CvError};
@@ -21,24 +24,47 @@ pub struct VideoInfo {
     pub width: u32,
     /// Height after rotation, pixels.
     pub height: u32,
-    /// Frames per second.
+    /// Frames per second (the average, for variable frame rates).
     pub fps: f64,
     /// Frame count as the container states it (may be an estimate for some files).
     pub frame_count: u64,
 }
 
+/// Which decoder a reader uses.
+enum Backend {
+    /// OpenCV's FFmpeg backend (8-bit SDR).
+    OpenCv {
+        cap: videoio::VideoCapture,
+        /// Colour correction after OpenCV's conversion (BGR order), where the stream's
+        /// Y'CbCr matrix is not the BT.601 one OpenCV applies whatever the tags say.
+        fix: Option<Mat>,
+        frame: Mat,
+    },
+    /// FFmpeg's libraries (10-bit, HDR).
+    Av {
+        reader: Box<svbrdf_av::AvReader>,
+        /// Linear level shown as white in the 8-bit pictures alignment works on.
+        white: f64,
+    },
+}
+
 /// A streaming video decoder.
 pub struct VideoReader {
     probe: crate::probe::VideoProbe,
-    /// Colour correction after OpenCV's conversion (BGR order), where the stream's
-    /// Y'CbCr matrix is not the BT.601 one OpenCV applies whatever the tags say.
-    fix: Option<Mat>,
-    cap: videoio::VideoCapture,
+    backend: Backend,
     path: PathBuf,
     info: VideoInfo,
     next_index: u64,
-    frame: Mat,
-    pending: Option<ImageU8>,
+    /// Time of the last frame returned, seconds.
+    time_s: f64,
+    pending: Option<(FrameImage, f64)>,
+    encoder: Srgb8Encoder,
+}
+
+fn av_error(e: svbrdf_av::AvError) -> CvError {
+    match e {
+        svbrdf_av::AvError::File { path, message } => CvError::File { path, message },
+    }
 }
 
 impl VideoReader {
@@ -61,42 +87,60 @@ impl VideoReader {
         }
         let probe = crate::probe::probe_video(path)?;
         probe.check_supported(path)?;
-        let name = path.to_string_lossy().into_owned();
-        let mut cap = videoio::VideoCapture::from_file(&name, videoio::CAP_FFMPEG)
-            .ctx(|| format!("opening {name}"))?;
-        if !cap.is_opened().ctx(|| format!("opening {name}"))? {
-            return Err(CvError::File {
-                path: path.into(),
-                message: "OpenCV/FFmpeg cannot decode this video".into(),
-            });
-        }
-        // Phone videos are stored landscape with a rotation tag; we want upright frames.
-        let _ = cap.set(videoio::CAP_PROP_ORIENTATION_AUTO, 1.0);
-        let get = |cap: &videoio::VideoCapture, p: i32| {
-            cap.get(p).ctx(|| format!("reading properties of {name}"))
+        let mut info = VideoInfo {
+            width: 0,
+            height: 0,
+            fps: 0.0,
+            frame_count: 0,
         };
-        let info = VideoInfo {
-            width: get(&cap, videoio::CAP_PROP_FRAME_WIDTH)? as u32,
-            height: get(&cap, videoio::CAP_PROP_FRAME_HEIGHT)? as u32,
-            fps: get(&cap, videoio::CAP_PROP_FPS)?,
-            frame_count: get(&cap, videoio::CAP_PROP_FRAME_COUNT)?.max(0.0) as u64,
-        };
-        let fix = match probe.decoding_matrix() {
-            DecodingMatrix::Bt709 => Some(bgr_matrix(&svbrdf_core::color::ycbcr_matrix_fix(
-                YcbcrMatrix::BT709,
-                YcbcrMatrix::BT601,
-            ))?),
-            DecodingMatrix::Bt601 => None,
+        let backend = if probe.needs_linear_decoding() {
+            let reader = svbrdf_av::AvReader::open(path).map_err(av_error)?;
+            let i = reader.info();
+            info.fps = i.fps;
+            info.frame_count = i.stated_frames;
+            Backend::Av {
+                white: i.transfer.reference_white(),
+                reader: Box::new(reader),
+            }
+        } else {
+            let name = path.to_string_lossy().into_owned();
+            let mut cap = videoio::VideoCapture::from_file(&name, videoio::CAP_FFMPEG)
+                .ctx(|| format!("opening {name}"))?;
+            if !cap.is_opened().ctx(|| format!("opening {name}"))? {
+                return Err(CvError::File {
+                    path: path.into(),
+                    message: "OpenCV/FFmpeg cannot decode this video".into(),
+                });
+            }
+            // Phone videos are stored landscape with a rotation tag; we want upright frames.
+            let _ = cap.set(videoio::CAP_PROP_ORIENTATION_AUTO, 1.0);
+            let get = |cap: &videoio::VideoCapture, p: i32| {
+                cap.get(p).ctx(|| format!("reading properties of {name}"))
+            };
+            info.fps = get(&cap, videoio::CAP_PROP_FPS)?;
+            info.frame_count = get(&cap, videoio::CAP_PROP_FRAME_COUNT)?.max(0.0) as u64;
+            let fix = match probe.decoding_matrix() {
+                DecodingMatrix::Bt709 => Some(bgr_matrix(&svbrdf_core::color::ycbcr_matrix_fix(
+                    YcbcrMatrix::BT709,
+                    YcbcrMatrix::BT601,
+                ))?),
+                DecodingMatrix::Bt601 | DecodingMatrix::Bt2020 => None,
+            };
+            Backend::OpenCv {
+                cap,
+                fix,
+                frame: Mat::default(),
+            }
         };
         let mut reader = Self {
             probe,
-            fix,
-            cap,
+            backend,
             path: path.into(),
             info,
             next_index: 0,
-            frame: Mat::default(),
+            time_s: 0.0,
             pending: None,
+            encoder: Srgb8Encoder::new(),
         };
         // The container's size ignores rotation metadata while decoded frames honour it,
         // so take the size from the first frame (kept for the first `read`).
@@ -104,33 +148,49 @@ impl VideoReader {
             path: path.into(),
             message: "the video has no decodable frames".into(),
         })?;
-        reader.info.width = first.width as u32;
-        reader.info.height = first.height as u32;
+        let (w, h, _) = first.0.shape();
+        reader.info.width = w as u32;
+        reader.info.height = h as u32;
         reader.pending = Some(first);
         Ok(reader)
     }
 
-    /// Decode the next frame into `self.frame`; `false` at the end of the stream.
+    /// Decode the next frame into the OpenCV backend's `frame`; `false` at the end.
     fn decode_mat(&mut self) -> Result<bool, CvError> {
-        let ok = self
-            .cap
-            .read(&mut self.frame)
+        let Backend::OpenCv { cap, fix, frame } = &mut self.backend else {
+            return Ok(false);
+        };
+        let ok = cap
+            .read(frame)
             .ctx(|| format!("decoding {}", self.path.display()))?;
-        let ok = ok && !self.frame.empty();
-        if let (true, Some(m)) = (ok, &self.fix) {
+        let ok = ok && !frame.empty();
+        if let (true, Some(m)) = (ok, fix.as_ref()) {
             let mut fixed = Mat::default();
-            opencv::core::transform(&self.frame, &mut fixed, m)
+            opencv::core::transform(&*frame, &mut fixed, m)
                 .ctx(|| format!("converting colours of {}", self.path.display()))?;
-            self.frame = fixed;
+            *frame = fixed;
         }
         Ok(ok)
     }
 
-    fn decode(&mut self) -> Result<Option<ImageU8>, CvError> {
-        if !self.decode_mat()? {
-            return Ok(None);
+    /// The next frame as decoded and its time, or `None` at the end.
+    fn decode(&mut self) -> Result<Option<(FrameImage, f64)>, CvError> {
+        let t = self.next_index as f64 / self.info.fps.max(1e-9);
+        match &mut self.backend {
+            Backend::Av { reader, .. } => Ok(reader
+                .read()
+                .map_err(av_error)?
+                .map(|f| (FrameImage::Linear(f.rgb), f.time_s))),
+            Backend::OpenCv { .. } => {
+                if !self.decode_mat()? {
+                    return Ok(None);
+                }
+                let Backend::OpenCv { frame, .. } = &self.backend else {
+                    return Ok(None);
+                };
+                Ok(Some((FrameImage::Srgb8(mat_to_rgb(frame)?), t)))
+            }
         }
-        mat_to_rgb(&self.frame).map(Some)
     }
 
     /// Stream properties.
@@ -141,6 +201,30 @@ impl VideoReader {
     /// The stream's description as FFmpeg read it (codec, colour tags, frame count).
     pub fn probe(&self) -> &crate::probe::VideoProbe {
         &self.probe
+    }
+
+    /// How the frames are turned into linear light, for records: the transfer curve,
+    /// the primaries converted from and the bits kept.
+    pub fn decoding(&self) -> Decoding {
+        match &self.backend {
+            Backend::Av { reader, .. } => {
+                let i = reader.info();
+                Decoding {
+                    decoder: "ffmpeg-libraries",
+                    transfer: i.transfer,
+                    from_bt2020: i.primaries == svbrdf_av::Primaries::Bt2020,
+                    bits: i.format.bits,
+                    rotation_deg: Some(i.rotation_deg),
+                }
+            }
+            Backend::OpenCv { .. } => Decoding {
+                decoder: "opencv",
+                transfer: svbrdf_core::color::Transfer::Sdr,
+                from_bt2020: false,
+                bits: 8,
+                rotation_deg: None,
+            },
+        }
     }
 
     /// Refuse a stream that ended early: after the last frame was read, fewer frames
@@ -166,48 +250,112 @@ impl VideoReader {
         self.next_index
     }
 
-    /// Decode and drop the next frame without converting it (for skipping).
-    pub fn skip(&mut self) -> Result<bool, CvError> {
-        if self.pending.take().is_some() {
-            self.next_index += 1;
-            return Ok(true);
-        }
-        let ok = self
-            .cap
-            .grab()
-            .ctx(|| format!("decoding {}", self.path.display()))?;
-        if ok {
-            self.next_index += 1;
-        }
-        Ok(ok)
+    /// Time of the frame last returned (or skipped), seconds from the first frame:
+    /// from the stream's timestamps for video decoded by FFmpeg's libraries (variable
+    /// frame rates keep their timing), else index / frame rate.
+    pub fn time_s(&self) -> f64 {
+        self.time_s
     }
 
-    /// The next frame, or `None` at the end of the stream.
-    pub fn read(&mut self) -> Result<Option<ImageU8>, CvError> {
+    /// Decode and drop the next frame without converting it (for skipping).
+    pub fn skip(&mut self) -> Result<bool, CvError> {
+        if let Some((_, t)) = self.pending.take() {
+            self.next_index += 1;
+            self.time_s = t;
+            return Ok(true);
+        }
+        let t = match &mut self.backend {
+            Backend::Av { reader, .. } => reader.skip().map_err(av_error)?,
+            Backend::OpenCv { cap, .. } => cap
+                .grab()
+                .ctx(|| format!("decoding {}", self.path.display()))?
+                .then(|| self.next_index as f64 / self.info.fps.max(1e-9)),
+        };
+        if let Some(t) = t {
+            self.next_index += 1;
+            self.time_s = t;
+        }
+        Ok(t.is_some())
+    }
+
+    /// The next frame as decoded: 8-bit sRGB-coded (OpenCV) or linear floats (10-bit
+    /// and HDR video), or `None` at the end of the stream.
+    pub fn read_image(&mut self) -> Result<Option<FrameImage>, CvError> {
         let frame = match self.pending.take() {
             Some(f) => Some(f),
             None => self.decode()?,
         };
-        if frame.is_some() {
+        Ok(frame.map(|(img, t)| {
             self.next_index += 1;
+            self.time_s = t;
+            img
+        }))
+    }
+
+    /// The next frame as 8-bit sRGB-coded RGB, or `None` at the end of the stream.
+    /// Linear frames are shown with the format's reference white at 255 (HDR
+    /// highlights above it clip here, not in [`read_image`](Self::read_image)).
+    pub fn read(&mut self) -> Result<Option<ImageU8>, CvError> {
+        let white = match &self.backend {
+            Backend::Av { white, .. } => *white,
+            Backend::OpenCv { .. } => 1.0,
+        };
+        Ok(self.read_image()?.map(|img| match img {
+            FrameImage::Srgb8(i) => i,
+            FrameImage::Linear(i) => self.to_srgb8(&i, white),
+        }))
+    }
+
+    fn to_srgb8(&self, img: &ImageF32, white: f64) -> ImageU8 {
+        let inv = 1.0 / white;
+        ImageU8 {
+            width: img.width,
+            height: img.height,
+            channels: img.channels,
+            data: img
+                .data
+                .iter()
+                .map(|v| self.encoder.encode(f64::from(*v) * inv))
+                .collect(),
         }
-        Ok(frame)
     }
 
     /// The next frame as luminance and a colour thumbnail (long side `thumb_long`), or
     /// `None` at the end of the stream: the full-resolution colour image never leaves
     /// OpenCV, which saves two 25 MB copies per 4K frame.
     pub fn read_luma(&mut self, thumb_long: u32) -> Result<Option<LumaFrame>, CvError> {
-        if let Some(rgb) = self.pending.take() {
-            self.next_index += 1;
-            return luma_frame_of(&rgb, thumb_long).map(Some);
+        if self.pending.is_some() || matches!(self.backend, Backend::Av { .. }) {
+            return match self.read()? {
+                Some(rgb) => luma_frame_of(&rgb, thumb_long).map(Some),
+                None => Ok(None),
+            };
         }
         if !self.decode_mat()? {
             return Ok(None);
         }
+        self.time_s = self.next_index as f64 / self.info.fps.max(1e-9);
         self.next_index += 1;
-        luma_frame_of_mat(&self.frame, thumb_long).map(Some)
+        let Backend::OpenCv { frame, .. } = &self.backend else {
+            return Ok(None);
+        };
+        luma_frame_of_mat(frame, thumb_long).map(Some)
     }
+}
+
+/// How a reader turns frames into linear light.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
+pub struct Decoding {
+    /// `opencv` (8-bit SDR) or `ffmpeg-libraries` (10-bit, HDR).
+    pub decoder: &'static str,
+    /// Transfer curve applied.
+    pub transfer: svbrdf_core::color::Transfer,
+    /// Whether BT.2020 primaries were converted to BT.709.
+    pub from_bt2020: bool,
+    /// Bits per sample kept through to the observations.
+    pub bits: u32,
+    /// Rotation applied, degrees clockwise (FFmpeg's libraries only; OpenCV applies
+    /// the tag itself).
+    pub rotation_deg: Option<u32>,
 }
 
 /// A 3x3 map on RGB as an OpenCV matrix acting on BGR pixels.

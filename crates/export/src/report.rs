@@ -460,7 +460,7 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
             rows.push((
                 "video".into(),
                 format!(
-                    "{} {}, Y'CbCr matrix {}, range {}: decoded with {}",
+                    "{} {}, Y'CbCr matrix {}, range {}: decoded with {}, transfer {}{} ({})",
                     v["codec"].as_str().unwrap_or("?"),
                     v["pix_fmt"].as_str().unwrap_or("?"),
                     v["matrix_tag"].as_str().unwrap_or("untagged"),
@@ -468,7 +468,14 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
                     v["decoded_with"]
                         .as_str()
                         .unwrap_or("?")
-                        .replace("bt", "BT.")
+                        .replace("bt", "BT."),
+                    v["transfer"].as_str().unwrap_or("sdr").to_uppercase(),
+                    if v["from_bt2020"].as_bool() == Some(true) {
+                        ", BT.2020 primaries converted to BT.709"
+                    } else {
+                        ""
+                    },
+                    v["decoder"].as_str().unwrap_or("opencv")
                 ),
             ));
         }

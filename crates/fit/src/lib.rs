@@ -302,6 +302,12 @@ pub struct FitSummary {
     /// Observations with a clipped channel (dropped, or kept as censored values with
     /// `censor_clipped`).
     pub clipped_observations: u64,
+    /// Share of the observations within [`NEAR_MIRROR_DEG`] of the mirror direction
+    /// (half vector against the plane's normal) that have a clipped channel: how
+    /// much of the highlights' peaks the video's range lost (`None` when clipped
+    /// observations were dropped, or none lie that close).
+    #[serde(default)]
+    pub clipped_near_mirror: Option<f64>,
     /// Pixels with at least `min_observations`.
     pub covered_pixels: usize,
     /// All pixels.
@@ -751,6 +757,11 @@ pub fn fit(
         light_intensity_source: source,
         observations: obs.len(),
         clipped_observations: obs.clipped,
+        clipped_near_mirror: if cfg.censor_clipped {
+            clipped_near_mirror(obs)
+        } else {
+            None
+        },
         covered_pixels: covered_px.len(),
         pixels: npx,
         initial_clusters: init.k,
@@ -798,6 +809,31 @@ pub fn fit(
         },
         summary,
     ))
+}
+
+/// Half-vector angle from the plane's normal within which an observation counts as
+/// near the mirror direction, degrees.
+pub const NEAR_MIRROR_DEG: f64 = 4.0;
+
+/// Share of the observations near the mirror direction that are clipped.
+fn clipped_near_mirror(obs: &Observations) -> Option<f64> {
+    let cos_limit = NEAR_MIRROR_DEG.to_radians().cos();
+    let (near, clipped) = (0..obs.pixels())
+        .into_par_iter()
+        .map(|p| {
+            let (mut n, mut c) = (0u64, 0u64);
+            for o in obs.range(p) {
+                let lv = obs.light_view(p, o);
+                let h = lv.light + lv.view;
+                if h.z / h.norm().max(1e-12) >= cos_limit {
+                    n += 1;
+                    c += u64::from(obs.clipped(o).iter().any(|x| *x));
+                }
+            }
+            (n, c)
+        })
+        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    (near > 0).then(|| clipped as f64 / near as f64)
 }
 
 #[cfg(test)]

@@ -76,6 +76,14 @@ pub struct VideoSpec {
     /// frame at gain 1).
     #[serde(default)]
     pub auto_exposure: Option<AutoExposureSpec>,
+    /// How the flash video is stored: 8-bit SDR H.264 (default), 10-bit SDR HEVC,
+    /// 10-bit HLG or PQ HEVC (BT.2020).
+    #[serde(default)]
+    pub format: svbrdf_cv::encode::VideoFormat,
+    /// Variable frame timing: frame `n` is taken and stamped at
+    /// `n / fps + frame_jitter_s * sin(1.7 n)` seconds (0: constant rate), < 0.4 / fps.
+    #[serde(default)]
+    pub frame_jitter_s: f64,
 }
 
 /// A phone's auto-exposure: each frame is metered (mean linear level of what the
@@ -305,6 +313,8 @@ impl SynthConfig {
                 k1_spread: 0.0,
                 bt709: false,
                 auto_exposure: None,
+                format: Default::default(),
+                frame_jitter_s: 0.0,
             },
             sweep: SweepSpec {
                 distance_min_cm: 7.0,
@@ -388,6 +398,8 @@ impl SynthConfig {
                 k1_spread: 0.05,
                 bt709: true,
                 auto_exposure: None,
+                format: Default::default(),
+                frame_jitter_s: 0.0,
                 ..Self::tiny().video
             },
             sweep: SweepSpec {
@@ -564,6 +576,16 @@ impl SynthConfig {
                 "distortion",
                 format!("k1={} k2={}", v.k1, v.k2),
                 "|k1|, |k2| < 0.5",
+            ));
+        }
+        if !(v.frame_jitter_s >= 0.0 && v.frame_jitter_s < 0.4 / v.fps) {
+            return Err(SynthError::invalid(
+                "frame jitter",
+                v.frame_jitter_s,
+                format!(
+                    "seconds in [0, {:.4}) (less than 0.4 frame intervals)",
+                    0.4 / v.fps
+                ),
             ));
         }
         if let Some(ae) = &v.auto_exposure {

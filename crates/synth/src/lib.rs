@@ -46,12 +46,13 @@ use svbrdf_core::maps::{write_exr, write_png, Encoding, PngDepth};
 use svbrdf_core::plane::{PlaneGrid, Region};
 use svbrdf_core::CoreError;
 use svbrdf_cv::aruco::{marker_pattern, Dictionary};
+use svbrdf_cv::encode::{FfmpegWriter, VideoFormat};
 use svbrdf_cv::video::VideoWriter;
 use svbrdf_cv::CvError;
 
 pub use config::{MaterialSource, SynthConfig};
 use material::MaterialMaps;
-use render::{expose, render_linear, Exposure, Lighting};
+use render::{expose, expose_linear, render_linear, Exposure, Lighting};
 use scene::Scene;
 use trajectory::Sweep;
 use truth::*;
@@ -271,17 +272,28 @@ pub fn synthesize(
         ambient: cfg.light.ambient,
     };
     let mut blur_rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0xB1B1);
-    let mut writer = if v.bt709 {
-        VideoWriter::create_bt709(&dir.join("flash.mp4"), v.fps, v.width, v.height)?
+    let mut writer = if v.format == VideoFormat::H264Sdr8 && v.frame_jitter_s == 0.0 {
+        FlashWriter::OpenCv(if v.bt709 {
+            VideoWriter::create_bt709(&dir.join("flash.mp4"), v.fps, v.width, v.height)?
+        } else {
+            VideoWriter::create(&dir.join("flash.mp4"), v.fps, v.width, v.height)?
+        })
     } else {
-        VideoWriter::create(&dir.join("flash.mp4"), v.fps, v.width, v.height)?
+        FlashWriter::Ffmpeg(FfmpegWriter::create(
+            &dir.join("flash.mp4"),
+            v.fps,
+            v.width,
+            v.height,
+            v.format,
+            v.frame_jitter_s,
+        )?)
     };
     let mut flash_frames = Vec::with_capacity(n_frames as usize);
     let mut auto_exposure = AutoExposure::default();
     let wander_phase = (cfg.seed % 1000) as f64 * 0.618_034 * std::f64::consts::TAU;
     progress.stage("flash video", n_frames);
     for i in 0..n_frames {
-        let t = i as f64 / v.fps;
+        let t = i as f64 / v.fps + v.frame_jitter_s * (1.7 * i as f64).sin();
         let cam = camera_at(t);
         let blurred = blur_rng.random_bool(cfg.sweep.motion_blur_probability);
         let exposures: Vec<Exposure> = if blurred {
@@ -318,13 +330,22 @@ pub fn synthesize(
             }
             None => 1.0,
         };
-        writer.write(&expose(
-            &lin,
-            cfg.light.shot_noise,
-            cfg.light.read_noise,
-            cfg.seed,
-            i,
-        ))?;
+        match &mut writer {
+            FlashWriter::OpenCv(w) => w.write(&expose(
+                &lin,
+                cfg.light.shot_noise,
+                cfg.light.read_noise,
+                cfg.seed,
+                i,
+            ))?,
+            FlashWriter::Ffmpeg(w) => w.write(&expose_linear(
+                &lin,
+                cfg.light.shot_noise,
+                cfg.light.read_noise,
+                cfg.seed,
+                i,
+            ))?,
+        }
         flash_frames.push(FrameTruth {
             index: i,
             time_s: t,
@@ -337,7 +358,10 @@ pub fn synthesize(
         });
         progress.advance(1);
     }
-    let written = writer.finish()?;
+    let written = match writer {
+        FlashWriter::OpenCv(w) => w.finish()?,
+        FlashWriter::Ffmpeg(w) => w.finish()?,
+    };
     progress.finish();
     files.push("flash.mp4".into());
     let mut streams = vec![StreamTruth {
@@ -460,6 +484,14 @@ pub fn synthesize(
         second_frames: truth.streams.get(1).map(|s| s.frames.len() as u64),
     };
     Ok(summary)
+}
+
+/// The flash video's encoder.
+enum FlashWriter {
+    /// OpenCV's 8-bit H.264 (constant frame rate).
+    OpenCv(VideoWriter),
+    /// `ffmpeg` for 10-bit, HDR and variable frame timing.
+    Ffmpeg(FfmpegWriter),
 }
 
 /// Mean linear level of a frame at gain 1 (what a phone's metering sees).
@@ -912,7 +944,10 @@ fn render_holdout(
 pub fn registered_from_truth(truth: &GroundTruth, cfg: &SynthConfig) -> RegisteredCapture {
     let mut cap =
         RegisteredCapture::new("svbrdf synth ground truth", truth.region, cfg.map_px_per_cm);
-    cap.light_intensity = Some([truth.light_intensity; 3]);
+    // In the decoder's linear units: an HDR video puts the simulator's white at the
+    // format's reference white.
+    let white = cfg.video.format.white();
+    cap.light_intensity = Some([truth.light_intensity * white; 3]);
     let mut id = 0;
     for (s, stream) in truth.streams.iter().enumerate() {
         cap.sources.push(Source {

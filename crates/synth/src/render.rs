@@ -151,11 +151,36 @@ fn jitter(col: usize, row: usize, sx: u32, sy: u32) -> (f64, f64) {
 /// Sensor model: Gaussian noise with variance `shot * value + read^2`, then clipping
 /// and 8-bit sRGB encoding. Deterministic for `(seed, frame)`.
 pub fn expose(img: &ImageF32, shot: f64, read: f64, seed: u64, frame: u64) -> ImageU8 {
-    let (w, h) = (img.width, img.height);
-    let mut out = ImageU8::new(w, h, 3);
     let enc = Srgb8Encoder::new();
-    out.data
-        .par_chunks_mut(w * 3)
+    let mut out = ImageU8::new(img.width, img.height, 3);
+    noisy(img, &mut out.data, shot, read, seed, frame, |v| {
+        enc.encode(v)
+    });
+    out
+}
+
+/// The same sensor noise as [`expose`] (the same draws), kept linear (negative values
+/// clamped to 0) for encoders of more than 8 bits.
+pub fn expose_linear(img: &ImageF32, shot: f64, read: f64, seed: u64, frame: u64) -> ImageF32 {
+    let mut out = ImageF32::new(img.width, img.height, 3);
+    noisy(img, &mut out.data, shot, read, seed, frame, |v| {
+        v.max(0.0) as f32
+    });
+    out
+}
+
+/// Add the sensor's noise to every value of `img` and store `code(noisy value)`.
+fn noisy<T: Send>(
+    img: &ImageF32,
+    out: &mut [T],
+    shot: f64,
+    read: f64,
+    seed: u64,
+    frame: u64,
+    code: impl Fn(f64) -> T + Sync,
+) {
+    let w = img.width;
+    out.par_chunks_mut(w * 3)
         .enumerate()
         .for_each(|(row, line)| {
             let mut rng = ChaCha8Rng::seed_from_u64(
@@ -165,8 +190,7 @@ pub fn expose(img: &ImageF32, shot: f64, read: f64, seed: u64, frame: u64) -> Im
                 let v = f64::from(*v);
                 let sigma = (shot * v.max(0.0) + read * read).sqrt();
                 let z: f64 = StandardNormal.sample(&mut rng);
-                *o = enc.encode(v + sigma * z);
+                *o = code(v + sigma * z);
             }
         });
-    out
 }
