@@ -59,6 +59,8 @@ pub struct VideoReader {
     time_s: f64,
     pending: Option<(FrameImage, f64)>,
     encoder: Srgb8Encoder,
+    /// OpenCV's timestamp of the first frame, seconds.
+    opencv_t0: f64,
 }
 
 fn av_error(e: svbrdf_av::AvError) -> CvError {
@@ -141,6 +143,7 @@ impl VideoReader {
             time_s: 0.0,
             pending: None,
             encoder: Srgb8Encoder::new(),
+            opencv_t0: 0.0,
         };
         // The container's size ignores rotation metadata while decoded frames honour it,
         // so take the size from the first frame (kept for the first `read`).
@@ -175,7 +178,6 @@ impl VideoReader {
 
     /// The next frame as decoded and its time, or `None` at the end.
     fn decode(&mut self) -> Result<Option<(FrameImage, f64)>, CvError> {
-        let t = self.next_index as f64 / self.info.fps.max(1e-9);
         match &mut self.backend {
             Backend::Av { reader, .. } => Ok(reader
                 .read()
@@ -185,12 +187,34 @@ impl VideoReader {
                 if !self.decode_mat()? {
                     return Ok(None);
                 }
+                let t = if self.next_index == 0 {
+                    // Times count from the first frame (streams may start later).
+                    self.opencv_t0 = 0.0;
+                    self.opencv_t0 = self.opencv_time().unwrap_or(0.0);
+                    0.0
+                } else {
+                    self.opencv_time()
+                        .unwrap_or(self.time_s + 1.0 / self.info.fps.max(1e-9))
+                };
                 let Backend::OpenCv { frame, .. } = &self.backend else {
                     return Ok(None);
                 };
                 Ok(Some((FrameImage::Srgb8(mat_to_rgb(frame)?), t)))
             }
         }
+    }
+
+    /// The OpenCV backend's time of the frame just decoded, from its timestamp.
+    fn opencv_time(&self) -> Option<f64> {
+        let Backend::OpenCv { cap, .. } = &self.backend else {
+            return None;
+        };
+        // At the end of some streams OpenCV reports 0: only a time after the last
+        // frame's counts (else the caller steps one frame interval on).
+        cap.get(videoio::CAP_PROP_POS_MSEC)
+            .ok()
+            .map(|ms| ms / 1000.0 - self.opencv_t0)
+            .filter(|t| t.is_finite() && (*t > self.time_s || self.next_index == 0))
     }
 
     /// Stream properties.
@@ -266,10 +290,13 @@ impl VideoReader {
         }
         let t = match &mut self.backend {
             Backend::Av { reader, .. } => reader.skip().map_err(av_error)?,
-            Backend::OpenCv { cap, .. } => cap
-                .grab()
-                .ctx(|| format!("decoding {}", self.path.display()))?
-                .then(|| self.next_index as f64 / self.info.fps.max(1e-9)),
+            Backend::OpenCv { cap, .. } => {
+                let grabbed = cap
+                    .grab()
+                    .ctx(|| format!("decoding {}", self.path.display()))?;
+                let fallback = self.time_s + 1.0 / self.info.fps.max(1e-9);
+                grabbed.then(|| self.opencv_time().unwrap_or(fallback))
+            }
         };
         if let Some(t) = t {
             self.next_index += 1;
@@ -333,7 +360,8 @@ impl VideoReader {
         if !self.decode_mat()? {
             return Ok(None);
         }
-        self.time_s = self.next_index as f64 / self.info.fps.max(1e-9);
+        let fallback = self.time_s + 1.0 / self.info.fps.max(1e-9);
+        self.time_s = self.opencv_time().unwrap_or(fallback);
         self.next_index += 1;
         let Backend::OpenCv { frame, .. } = &self.backend else {
             return Ok(None);

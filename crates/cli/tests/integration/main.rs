@@ -7,6 +7,7 @@ mod consistency;
 mod eval;
 mod exposure;
 mod fit;
+mod formats;
 mod hostile;
 mod photos;
 mod run;

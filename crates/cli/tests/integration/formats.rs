@@ -1,0 +1,223 @@
+//! Video as phones record it beyond 8-bit SDR: 10-bit HLG (BT.2020) and 10-bit SDR
+//! HEVC, rotation tags on 10-bit video, and variable frame timing.
+
+use crate::util::{json_lines, stderr, svbrdf, temp_dir, tiny_capture};
+
+fn read(p: &std::path::Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
+}
+
+/// Synthesize, align and fit a tiny capture; (align.json, fit.json, bench accuracy).
+fn pipeline(
+    name: &str,
+    extra: &[&str],
+) -> (serde_json::Value, serde_json::Value, serde_json::Value) {
+    let dir = temp_dir().join(name);
+    let cap = dir.join("capture");
+    let mut args = vec![
+        "synth",
+        "--preset",
+        "tiny",
+        "--material",
+        "leather",
+        "--seed",
+        "1",
+    ];
+    args.extend(extra);
+    args.extend(["--out", cap.to_str().unwrap()]);
+    let o = svbrdf(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let aligned = dir.join("aligned");
+    let o = svbrdf(&[
+        "align",
+        "--video",
+        cap.join("flash.mp4").to_str().unwrap(),
+        "--reference",
+        cap.join("reference.jpg").to_str().unwrap(),
+        "--camera",
+        cap.join("camera.json").to_str().unwrap(),
+        "--out",
+        aligned.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let maps = dir.join("maps");
+    let o = svbrdf(&[
+        "fit",
+        "--capture",
+        aligned.to_str().unwrap(),
+        "--out",
+        maps.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = svbrdf(&[
+        "bench",
+        "--no-brdf",
+        "--fit-maps",
+        maps.to_str().unwrap(),
+        "--truth",
+        cap.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let acc = json_lines(&o)[0]["accuracy"].clone();
+    (
+        read(&aligned.join("align.json")),
+        read(&maps.join("fit.json")),
+        acc,
+    )
+}
+
+#[test]
+fn an_hlg_capture_is_decoded_to_linear_light_and_clips_less_than_sdr() {
+    let (_, sdr_fit, sdr) = pipeline("sdr8", &[]);
+    let (hlg_align, hlg_fit, hlg) = pipeline("hlg", &["--video-format", "hevc-hlg"]);
+    let v = &hlg_align["summary"]["video_decoding"];
+    assert_eq!(v["transfer"], "hlg", "{v}");
+    assert_eq!(v["decoder"], "ffmpeg-libraries", "{v}");
+    assert_eq!(v["bit_depth"], 10, "{v}");
+    assert_eq!(v["from_bt2020"], true, "{v}");
+    let d = |a: &serde_json::Value| a["diffuse_rmse"].as_f64().unwrap();
+    let clipped = |f: &serde_json::Value| f["summary"]["clipped_near_mirror"].as_f64().unwrap();
+    eprintln!(
+        "diffuse RMSE SDR {:.4}, HLG {:.4}; clipped near the mirror SDR {:.3}, HLG {:.3}; relighting HLG {}",
+        d(&sdr),
+        d(&hlg),
+        clipped(&sdr_fit),
+        clipped(&hlg_fit),
+        hlg["relight_relative_rmse"]
+    );
+    assert!(
+        d(&hlg) < 1.25 * d(&sdr) + 0.003,
+        "HLG {} against SDR {}",
+        d(&hlg),
+        d(&sdr)
+    );
+    assert!(
+        clipped(&hlg_fit) < 0.5 * clipped(&sdr_fit),
+        "HLG's headroom did not lower the clipped share near the mirror direction"
+    );
+    // Rendered in the decoder's units, the held-out lights come out at their level.
+    for r in hlg["relight_mean_ratio"].as_array().unwrap() {
+        let r = r.as_f64().unwrap();
+        assert!((0.8..1.25).contains(&r), "{hlg}");
+    }
+}
+
+#[test]
+fn variable_frame_times_reach_the_registered_capture() {
+    let dir = temp_dir().join("vfr");
+    let cap = dir.join("capture");
+    let o = svbrdf(&[
+        "synth",
+        "--preset",
+        "tiny",
+        "--video-format",
+        "hevc-sdr10",
+        "--frame-jitter",
+        "0.01",
+        "--out",
+        cap.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let aligned = dir.join("aligned");
+    let o = svbrdf(&[
+        "align",
+        "--video",
+        cap.join("flash.mp4").to_str().unwrap(),
+        "--reference",
+        cap.join("reference.jpg").to_str().unwrap(),
+        "--camera",
+        cap.join("camera.json").to_str().unwrap(),
+        "--out",
+        aligned.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let truth = read(&cap.join("ground_truth/truth.json"));
+    let times: std::collections::HashMap<u64, f64> = truth["streams"][0]["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| (f["index"].as_u64().unwrap(), f["time_s"].as_f64().unwrap()))
+        .collect();
+    let capture = read(&aligned.join("capture.json"));
+    let frames = capture["frames"].as_array().unwrap();
+    assert!(frames.len() > 10);
+    let mut off_grid = 0;
+    for f in frames {
+        let i = f["frame_index"].as_u64().unwrap();
+        let t = f["time_s"].as_f64().unwrap();
+        assert!(
+            (t - times[&i]).abs() < 1e-3,
+            "frame {i}: {t} against {}",
+            times[&i]
+        );
+        off_grid += usize::from((t - i as f64 / 30.0).abs() > 2e-3);
+    }
+    assert!(
+        off_grid > frames.len() / 2,
+        "the frame times are not jittered"
+    );
+}
+
+#[test]
+fn ten_bit_video_turned_by_90_or_270_degrees_comes_out_upright() {
+    let cap = tiny_capture();
+    let root = temp_dir();
+    let ffmpeg = |args: &[&str]| {
+        let st = std::process::Command::new("ffmpeg")
+            .args(["-v", "error", "-y"])
+            .args(args)
+            .status()
+            .expect("ffmpeg must be installed (the setup script installs it)");
+        assert!(st.success());
+    };
+    let hevc = root.join("hevc10.mp4");
+    ffmpeg(&[
+        "-i",
+        cap.join("flash.mp4").to_str().unwrap(),
+        "-frames:v",
+        "3",
+        "-c:v",
+        "libx265",
+        "-x265-params",
+        "lossless=1:log-level=error",
+        "-pix_fmt",
+        "yuv420p10le",
+        hevc.to_str().unwrap(),
+    ]);
+    let mut plain = svbrdf_cv::video::VideoReader::open(&hevc).unwrap();
+    let fa = plain.read().unwrap().unwrap();
+    let (w, h) = (fa.width, fa.height);
+    let mut turned = Vec::new();
+    for deg in ["90", "270"] {
+        let rot = root.join(format!("rot{deg}.mp4"));
+        ffmpeg(&[
+            "-i",
+            hevc.to_str().unwrap(),
+            "-c",
+            "copy",
+            "-metadata:s:v:0",
+            &format!("rotate={deg}"),
+            rot.to_str().unwrap(),
+        ]);
+        let mut r = svbrdf_cv::video::VideoReader::open(&rot).unwrap();
+        assert_eq!(r.decoding().decoder, "ffmpeg-libraries");
+        let fb = r.read().unwrap().unwrap();
+        assert_eq!((fb.width, fb.height), (h, w), "{deg}");
+        let cw = (0..h).all(|y| {
+            (0..w)
+                .step_by(7)
+                .all(|x| fa.pixel(x, y) == fb.pixel(h - 1 - y, x))
+        });
+        let ccw = (0..h).all(|y| {
+            (0..w)
+                .step_by(7)
+                .all(|x| fa.pixel(x, y) == fb.pixel(y, w - 1 - x))
+        });
+        assert!(cw != ccw, "{deg}: not the original turned by a quarter");
+        turned.push(cw);
+    }
+    assert_ne!(
+        turned[0], turned[1],
+        "90 and 270 degrees turned the same way"
+    );
+}
