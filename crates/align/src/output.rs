@@ -5,7 +5,7 @@ use std::path::Path;
 
 use svbrdf_core::capture::{
     Frame, FrameMapping, PreparedMapping, RegisteredCapture, Source, SourceKind, SubFrame,
-    CAPTURE_FILE,
+    VideoCoding, CAPTURE_FILE,
 };
 use svbrdf_core::color::srgb_to_linear;
 use svbrdf_core::fsutil::{write_json, StagingDir};
@@ -231,6 +231,18 @@ pub fn write(
         path: input.to_string_lossy().into_owned(),
         encoding: Encoding::Srgb,
         stream: 0,
+        video: video_decoding.as_ref().map(|v| VideoCoding {
+            codec: v.codec.clone(),
+            pix_fmt: v.pix_fmt.clone(),
+            transfer: v.transfer,
+            from_bt2020: v.from_bt2020,
+            bits: if v.decoder == "opencv" {
+                8
+            } else {
+                v.bit_depth
+            },
+            decoder: v.decoder.clone(),
+        }),
     });
     if let Some(s) = &second {
         let v = std::path::absolute(&s.video).unwrap_or_else(|_| s.video.clone());
@@ -239,6 +251,7 @@ pub fn write(
             path: v.to_string_lossy().into_owned(),
             encoding: Encoding::Srgb,
             stream: 1,
+            video: None,
         });
     }
     for (k, (((f, m), pose), light)) in reg

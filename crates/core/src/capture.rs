@@ -70,6 +70,27 @@ pub struct Source {
     pub encoding: Encoding,
     /// Camera stream: 0 for the flash camera, 1 for a second (no-flash) camera.
     pub stream: u32,
+    /// For a video: how its frames were found to be coded and are turned into linear
+    /// light (a record for people; decoders read the stream's own tags again).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub video: Option<VideoCoding>,
+}
+
+/// How a video source is coded and decoded.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct VideoCoding {
+    /// Codec (`h264`, `hevc`, ...).
+    pub codec: String,
+    /// Pixel format (`yuv420p`, `yuv420p10le`, ...).
+    pub pix_fmt: String,
+    /// Transfer curve applied: `sdr` (the sRGB curve), `hlg` or `pq`.
+    pub transfer: crate::color::Transfer,
+    /// Whether BT.2020 primaries are converted to BT.709 in linear light.
+    pub from_bt2020: bool,
+    /// Bits per sample kept through to the observations (8 or 10).
+    pub bits: u32,
+    /// `opencv` (8-bit SDR) or `ffmpeg-libraries` (10-bit and HDR).
+    pub decoder: String,
 }
 
 /// Kind of image source.
@@ -548,6 +569,7 @@ mod tests {
     fn validation_names_the_problem() {
         let mut cap = RegisteredCapture::new("test", Region::centred(4.0, 4.0), 10.0);
         cap.sources.push(Source {
+            video: None,
             kind: SourceKind::Video,
             path: "v.mp4".into(),
             encoding: Encoding::Srgb,

@@ -186,6 +186,7 @@ pub fn import_materialgan(
     let mut cap = RegisteredCapture::new("svbrdf import (MaterialGAN layout)", region, 1.0 / px);
     cap.light_intensity = light_intensity;
     cap.sources.push(Source {
+        video: None,
         kind: SourceKind::Images,
         path: abs.to_string_lossy().into_owned(),
         encoding: Encoding::Srgb,

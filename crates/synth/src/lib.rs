@@ -951,6 +951,7 @@ pub fn registered_from_truth(truth: &GroundTruth, cfg: &SynthConfig) -> Register
     let mut id = 0;
     for (s, stream) in truth.streams.iter().enumerate() {
         cap.sources.push(Source {
+            video: None,
             kind: SourceKind::Video,
             path: format!("../{}", stream.file),
             encoding: Encoding::Srgb,

@@ -67,7 +67,7 @@ fn pipeline(
 }
 
 #[test]
-fn an_hlg_capture_is_decoded_to_linear_light_and_clips_less_than_sdr() {
+fn hlg_and_pq_captures_are_decoded_to_linear_light_and_clip_less_than_sdr() {
     let (_, sdr_fit, sdr) = pipeline("sdr8", &[]);
     let (hlg_align, hlg_fit, hlg) = pipeline("hlg", &["--video-format", "hevc-hlg"]);
     let v = &hlg_align["summary"]["video_decoding"];
@@ -100,6 +100,21 @@ fn an_hlg_capture_is_decoded_to_linear_light_and_clips_less_than_sdr() {
         let r = r.as_f64().unwrap();
         assert!((0.8..1.25).contains(&r), "{hlg}");
     }
+    // PQ (HDR10): the same, through its own curve.
+    let (pq_align, pq_fit, pq) = pipeline("pq", &["--video-format", "hevc-pq"]);
+    assert_eq!(pq_align["summary"]["video_decoding"]["transfer"], "pq");
+    eprintln!(
+        "PQ: diffuse RMSE {:.4}, clipped near the mirror {:.3}",
+        d(&pq),
+        clipped(&pq_fit)
+    );
+    assert!(
+        d(&pq) < 1.25 * d(&sdr) + 0.003,
+        "PQ {} against SDR {}",
+        d(&pq),
+        d(&sdr)
+    );
+    assert!(clipped(&pq_fit) < 0.5 * clipped(&sdr_fit));
 }
 
 #[test]
