@@ -8,23 +8,7 @@ use svbrdf_core::capture::{FrameMapping, RegisteredCapture};
 use crate::util::{stderr, svbrdf, temp_dir, tiny_capture};
 
 fn align(cap: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
-    let mut args = vec![
-        "align",
-        "--video",
-        cap.join("flash.mp4").to_str().unwrap(),
-        "--reference",
-        cap.join("reference.jpg").to_str().unwrap(),
-        "--camera",
-        cap.join("camera.json").to_str().unwrap(),
-        "--out",
-        out.to_str().unwrap(),
-    ]
-    .into_iter()
-    .map(String::from)
-    .collect::<Vec<_>>();
-    args.extend(extra.iter().map(|s| s.to_string()));
-    let refs: Vec<&str> = args.iter().map(String::as_str).collect();
-    svbrdf(&refs)
+    crate::util::align_synth(cap, out, extra)
 }
 
 /// `svbrdf bench --align-capture OUT --truth CAP`: the alignment's accuracy.

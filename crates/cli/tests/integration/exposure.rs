@@ -1,26 +1,7 @@
 //! Auto-exposure drift: the simulator records it, alignment estimates one gain per
 //! frame, and the fit divides it out.
 
-use crate::util::{json_lines, stderr, svbrdf, temp_dir};
-
-fn read(p: &std::path::Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
-}
-
-fn diffuse_rmse(maps: &std::path::Path, truth: &std::path::Path) -> f64 {
-    let o = svbrdf(&[
-        "bench",
-        "--no-brdf",
-        "--fit-maps",
-        maps.to_str().unwrap(),
-        "--truth",
-        truth.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    json_lines(&o)[0]["accuracy"]["diffuse_rmse"]
-        .as_f64()
-        .unwrap()
-}
+use crate::util::{align_synth, maps_accuracy, read_json as read, stderr, svbrdf, temp_dir};
 
 #[test]
 fn auto_exposure_drift_is_estimated_per_frame_and_divided_out() {
@@ -52,23 +33,7 @@ fn auto_exposure_drift_is_estimated_per_frame_and_divided_out() {
     let mut fits = Vec::new();
     for (name, extra) in [("estimated", None), ("fixed", Some("--fixed-exposure"))] {
         let aligned = dir.join(format!("aligned-{name}"));
-        let mut args: Vec<String> = vec!["align".into()];
-        args.extend(
-            [
-                "--video",
-                cap.join("flash.mp4").to_str().unwrap(),
-                "--reference",
-                cap.join("reference.jpg").to_str().unwrap(),
-                "--camera",
-                cap.join("camera.json").to_str().unwrap(),
-                "--out",
-                aligned.to_str().unwrap(),
-            ]
-            .map(String::from),
-        );
-        args.extend(extra.map(String::from));
-        let args: Vec<&str> = args.iter().map(String::as_str).collect();
-        let o = svbrdf(&args);
+        let o = align_synth(&cap, &aligned, &extra.map_or(vec![], |e| vec![e]));
         assert!(o.status.success(), "{}", stderr(&o));
         let said = String::from_utf8_lossy(&o.stdout);
         assert!(said.contains("exposure:"), "{said}");
@@ -116,7 +81,7 @@ fn auto_exposure_drift_is_estimated_per_frame_and_divided_out() {
             maps.to_str().unwrap(),
         ]);
         assert!(o.status.success(), "{}", stderr(&o));
-        fits.push(diffuse_rmse(&maps, &cap));
+        fits.push(maps_accuracy(&maps, &cap)["diffuse_rmse"].as_f64().unwrap());
     }
     eprintln!(
         "diffuse RMSE with gains {:.4}, assuming fixed exposure {:.4}",

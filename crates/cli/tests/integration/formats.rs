@@ -1,11 +1,9 @@
 //! Video as phones record it beyond 8-bit SDR: 10-bit HLG (BT.2020) and 10-bit SDR
 //! HEVC, rotation tags on 10-bit video, and variable frame timing.
 
-use crate::util::{json_lines, stderr, svbrdf, temp_dir, tiny_capture};
-
-fn read(p: &std::path::Path) -> serde_json::Value {
-    serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
-}
+use crate::util::{
+    align_synth, maps_accuracy, read_json as read, stderr, svbrdf, temp_dir, tiny_capture,
+};
 
 /// Synthesize, align and fit a tiny capture; (align.json, fit.json, bench accuracy).
 fn pipeline(
@@ -28,17 +26,7 @@ fn pipeline(
     let o = svbrdf(&args);
     assert!(o.status.success(), "{}", stderr(&o));
     let aligned = dir.join("aligned");
-    let o = svbrdf(&[
-        "align",
-        "--video",
-        cap.join("flash.mp4").to_str().unwrap(),
-        "--reference",
-        cap.join("reference.jpg").to_str().unwrap(),
-        "--camera",
-        cap.join("camera.json").to_str().unwrap(),
-        "--out",
-        aligned.to_str().unwrap(),
-    ]);
+    let o = align_synth(&cap, &aligned, &[]);
     assert!(o.status.success(), "{}", stderr(&o));
     let maps = dir.join("maps");
     let o = svbrdf(&[
@@ -49,16 +37,7 @@ fn pipeline(
         maps.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let o = svbrdf(&[
-        "bench",
-        "--no-brdf",
-        "--fit-maps",
-        maps.to_str().unwrap(),
-        "--truth",
-        cap.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
-    let acc = json_lines(&o)[0]["accuracy"].clone();
+    let acc = maps_accuracy(&maps, &cap);
     (
         read(&aligned.join("align.json")),
         read(&maps.join("fit.json")),
@@ -134,17 +113,7 @@ fn variable_frame_times_reach_the_registered_capture() {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let aligned = dir.join("aligned");
-    let o = svbrdf(&[
-        "align",
-        "--video",
-        cap.join("flash.mp4").to_str().unwrap(),
-        "--reference",
-        cap.join("reference.jpg").to_str().unwrap(),
-        "--camera",
-        cap.join("camera.json").to_str().unwrap(),
-        "--out",
-        aligned.to_str().unwrap(),
-    ]);
+    let o = align_synth(&cap, &aligned, &[]);
     assert!(o.status.success(), "{}", stderr(&o));
     let truth = read(&cap.join("ground_truth/truth.json"));
     let times: std::collections::HashMap<u64, f64> = truth["streams"][0]["frames"]

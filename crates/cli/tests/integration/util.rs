@@ -196,3 +196,44 @@ impl Drop for Server {
         let _ = self.0.wait();
     }
 }
+
+/// `svbrdf align` of a `svbrdf synth` folder's flash video, reference photo and camera
+/// description into `out`, with `extra` flags.
+pub fn align_synth(cap: &Path, out: &Path, extra: &[&str]) -> Output {
+    let mut args = vec![
+        "align",
+        "--video",
+        cap.join("flash.mp4").to_str().unwrap(),
+        "--reference",
+        cap.join("reference.jpg").to_str().unwrap(),
+        "--camera",
+        cap.join("camera.json").to_str().unwrap(),
+        "--out",
+        out.to_str().unwrap(),
+    ]
+    .into_iter()
+    .map(String::from)
+    .collect::<Vec<_>>();
+    args.extend(extra.iter().map(|s| s.to_string()));
+    let refs: Vec<&str> = args.iter().map(String::as_str).collect();
+    svbrdf(&refs)
+}
+
+/// A JSON file.
+pub fn read_json(p: &Path) -> serde_json::Value {
+    serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
+}
+
+/// `svbrdf bench --fit-maps MAPS --truth CAP`: the maps' accuracy object.
+pub fn maps_accuracy(maps: &Path, cap: &Path) -> serde_json::Value {
+    let o = svbrdf(&[
+        "bench",
+        "--no-brdf",
+        "--fit-maps",
+        maps.to_str().unwrap(),
+        "--truth",
+        cap.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    json_lines(&o)[0]["accuracy"].clone()
+}
