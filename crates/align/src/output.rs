@@ -5,7 +5,7 @@ use std::path::Path;
 
 use svbrdf_core::capture::{
     Frame, FrameMapping, PreparedMapping, RegisteredCapture, Source, SourceKind, SubFrame,
-    VideoCoding, CAPTURE_FILE,
+    VideoCoding, CAPTURE_FILE, MAX_EXPOSURE_GAIN,
 };
 use svbrdf_core::color::srgb_to_linear;
 use svbrdf_core::fsutil::{write_json, StagingDir};
@@ -112,7 +112,21 @@ fn exposure_gains(
             thumb: &reg.frames[k].thumb,
         })
         .collect();
-    match crate::exposure::estimate(&inputs, region, &cfg.exposure) {
+    let estimate = crate::exposure::estimate(&inputs, region, &cfg.exposure).and_then(|est| {
+        // Gains beyond the registered capture's bounds are not exposure drift.
+        let (lo, hi) = est.range_ev();
+        let bound = MAX_EXPOSURE_GAIN.log2();
+        if lo < -bound || hi > bound {
+            Err(AlignError::invalid(
+                "exposure gain range",
+                format!("{lo:+.1} to {hi:+.1} EV"),
+                format!("within +-{bound:.0} EV of the mean"),
+            ))
+        } else {
+            Ok(est)
+        }
+    });
+    match estimate {
         Ok(est) => {
             let (lo, hi) = est.range_ev();
             let doubtful = (est.residual_spread > DOUBTFUL_SPREAD).then(|| {
