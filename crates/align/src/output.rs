@@ -14,7 +14,9 @@ use svbrdf_core::image::ImageF32;
 use svbrdf_core::maps::{write_png, Encoding, PngDepth};
 use svbrdf_core::plane::PlaneGrid;
 
-use crate::exposure::{ExposureCurve, ExposureMode, FrameGain, GainInput, DOUBTFUL_SPREAD};
+use crate::exposure::{
+    ExposureCurve, ExposureMode, FrameGain, GainInput, DOUBTFUL_SPREAD, SIGNIFICANT_SPREAD_RATIO,
+};
 use crate::matching::Registration;
 use crate::reference::ReferenceFrame;
 use crate::{AlignConfig, AlignError, AlignInputs, AlignSummary, Progress};
@@ -97,6 +99,7 @@ fn exposure_gains(
             mode,
             range_ev: None,
             residual_spread: None,
+            residual_spread_fixed: None,
             samples: 0,
             frames,
             note,
@@ -139,16 +142,24 @@ fn exposure_gains(
             if let Some(w) = &doubtful {
                 warnings.push(w.clone());
             }
+            let drift = est.residual_spread_fixed > SIGNIFICANT_SPREAD_RATIO * est.residual_spread;
             let mut c = curve(
-                ExposureMode::Estimated,
+                if drift {
+                    ExposureMode::Estimated
+                } else {
+                    ExposureMode::Steady
+                },
                 &|i| (est.gains[i], est.frame_samples[i]),
                 doubtful,
             );
             c.range_ev = Some([lo, hi]);
             c.residual_spread = Some(est.residual_spread);
+            c.residual_spread_fixed = Some(est.residual_spread_fixed);
             c.samples = est.samples;
-            for (i, &k) in flash.iter().enumerate() {
-                cap.frames[k].exposure_gain = Some(est.gains[i]);
+            if drift {
+                for (i, &k) in flash.iter().enumerate() {
+                    cap.frames[k].exposure_gain = Some(est.gains[i]);
+                }
             }
             c
         }

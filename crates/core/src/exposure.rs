@@ -71,6 +71,9 @@ pub struct GainEstimate {
     /// Robust spread of the relative residual (1.4826 x MAD): how well one gain per
     /// frame explains what overlapping frames saw; a few percent when it does.
     pub residual_spread: f64,
+    /// The same with every gain held at 1 (fixed exposure): much larger than
+    /// `residual_spread` when the exposure really drifted, about equal when not.
+    pub residual_spread_fixed: f64,
     /// Samples used (points seen in at least two frames).
     pub samples: usize,
 }
@@ -169,6 +172,7 @@ pub fn estimate_gains(
         used: &used,
         bin_of: &bin_of,
         ambient: cfg.ambient,
+        frozen_gains: false,
     };
     // Unknowns: log gain per frame, log gloss per bin (the fullest bin fixed at 0),
     // and per point a_p, c_p (eliminated in each step: their blocks are 2x2).
@@ -189,30 +193,13 @@ pub fn estimate_gains(
         }
     }
     let own_frame: Vec<bool> = counts.iter().map(|n| *n >= cfg.min_frame_samples).collect();
-    let mut scale = 0.3f64;
-    let mut lambda = 1e-3;
-    for _ in 0..cfg.rounds.max(1) {
-        let w = model.weights(&x, scale);
-        let cost = model.cost(&x, &w);
-        let mut accepted = false;
-        for _ in 0..8 {
-            let Some(next) = model.step(&x, &w, lambda, ref_bin, &own_frame) else {
-                lambda *= 10.0;
-                continue;
-            };
-            if model.cost(&next, &w) <= cost {
-                x = next;
-                lambda = (lambda * 0.3).max(1e-9);
-                accepted = true;
-                break;
-            }
-            lambda *= 10.0;
-        }
-        scale = model.spread(&x).max(0.005);
-        if !accepted {
-            break;
-        }
-    }
+    // The same model with every gain held at 1: how much the gains explain.
+    let fixed_model = Model {
+        frozen_gains: true,
+        ..model
+    };
+    let (_, spread_fixed) = solve(&fixed_model, x.clone(), cfg.rounds, ref_bin, &own_frame);
+    let (x, scale) = solve(&model, x, cfg.rounds, ref_bin, &own_frame);
     let g: Vec<f64> = x.u.iter().map(|u| u.exp()).collect();
     // Frames with too few samples: interpolate log gain over time.
     let own: Vec<usize> = (0..frames)
@@ -265,8 +252,44 @@ pub fn estimate_gains(
             })
             .collect(),
         residual_spread: scale,
+        residual_spread_fixed: spread_fixed,
         samples: used.len(),
     })
+}
+
+/// Robust Levenberg-Marquardt from `x`: the solution and its residual spread.
+fn solve(
+    model: &Model<'_>,
+    mut x: Params,
+    rounds: usize,
+    ref_bin: usize,
+    own_frame: &[bool],
+) -> (Params, f64) {
+    let mut scale = 0.3f64;
+    let mut lambda = 1e-3;
+    for _ in 0..rounds.max(1) {
+        let w = model.weights(&x, scale);
+        let cost = model.cost(&x, &w);
+        let mut accepted = false;
+        for _ in 0..8 {
+            let Some(next) = model.step(&x, &w, lambda, ref_bin, own_frame) else {
+                lambda *= 10.0;
+                continue;
+            };
+            if model.cost(&next, &w) <= cost {
+                x = next;
+                lambda = (lambda * 0.3).max(1e-9);
+                accepted = true;
+                break;
+            }
+            lambda *= 10.0;
+        }
+        scale = model.spread(&x).max(0.005);
+        if !accepted {
+            break;
+        }
+    }
+    (x, scale)
 }
 
 #[cfg(test)]
@@ -316,6 +339,10 @@ mod tests {
         let s = sweep(frames, gain, ambient);
         let e = estimate_gains(&s, frames, 24 * 24, None, &ExposureConfig::default()).unwrap();
         let gm = ((0..frames).map(|f| gain(f).ln()).sum::<f64>() / frames as f64).exp();
+        // Holding the gains at 1 explains a drift much worse, a steady exposure as well.
+        let drifts = (0..frames).any(|f| (gain(f) / gm).log2().abs() > 0.2);
+        let ratio = e.residual_spread_fixed / e.residual_spread;
+        assert_eq!(ratio > 1.3, drifts, "spread ratio {ratio}");
         for f in 0..frames {
             let want = gain(f) / gm;
             assert!(
@@ -374,6 +401,8 @@ struct Model<'a> {
     used: &'a [ExposureSample],
     bin_of: &'a dyn Fn(&ExposureSample) -> (usize, f64),
     ambient: bool,
+    /// Hold every gain at 1 (the fixed-exposure model, for comparison).
+    frozen_gains: bool,
 }
 
 impl Model<'_> {
@@ -512,13 +541,20 @@ impl Model<'_> {
         }
         // Gauges: the reference bin is fixed (its row and column replaced by the
         // identity); the mean log gain over the frames with their own samples is 0.
-        let rb = nf + ref_bin;
-        for k in 0..n {
-            h[(rb, k)] = 0.0;
-            h[(k, rb)] = 0.0;
+        let fixed: Vec<usize> = if self.frozen_gains {
+            (0..nf).chain([nf + ref_bin]).collect()
+        } else {
+            vec![nf + ref_bin]
+        };
+        for &rb in &fixed {
+            for k in 0..n {
+                h[(rb, k)] = 0.0;
+                h[(k, rb)] = 0.0;
+            }
+            h[(rb, rb)] = 1.0;
+            rhs[rb] = 0.0;
         }
-        h[(rb, rb)] = 1.0;
-        rhs[rb] = 0.0;
+        let own: Vec<bool> = own.iter().map(|o| *o && !self.frozen_gains).collect();
         let nown = own.iter().filter(|o| **o).count().max(1) as f64;
         let strength = h.diagonal().iter().take(nf).sum::<f64>() / nf.max(1) as f64;
         let mean_u: f64 = (0..nf).filter(|&f| own[f]).map(|f| x.u[f]).sum::<f64>() / nown;

@@ -448,6 +448,11 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
                     100.0 * e["residual_spread"].as_f64().unwrap_or(0.0)
                 ),
                 (Some("fixed"), _) => "assumed fixed (--fixed-exposure)".into(),
+                (Some("steady"), _) => format!(
+                    "steady: one gain per frame explains no more than fixed exposure (residual spread {:.1}% against {:.1}%), so frames are taken as equally exposed",
+                    100.0 * e["residual_spread"].as_f64().unwrap_or(0.0),
+                    100.0 * e["residual_spread_fixed"].as_f64().unwrap_or(0.0)
+                ),
                 _ => format!(
                     "not estimated ({}): frames taken as equally exposed",
                     e["note"].as_str().unwrap_or("no reason recorded")
@@ -648,7 +653,7 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
             ),
             (
                 "exposure.png",
-                "exposure gain per flash frame over time (lines every stop, the brighter one at the mean; orange: interpolated); the fit divides each frame by its gain",
+                "exposure gain per flash frame over time (lines every stop, the brighter one at the mean; orange: interpolated); the fit divides each frame by its gain unless the record says the exposure was steady",
             ),
         ]
         .iter()
