@@ -72,8 +72,9 @@ pub struct Layout {
     pub strides: [usize; 3],
 }
 
-/// Entries of the transfer lookup table over [0, 1].
-const LUT_SIZE: usize = 4096;
+/// Entries of the transfer lookup table over [0, 1]: finer than 10-bit codes, so the
+/// nearest entry is within 1/64 of a code of the exact value.
+const LUT_SIZE: usize = 65536;
 
 /// Linear value per non-linear code in [0, 1], sampled at `LUT_SIZE` points.
 pub fn transfer_table(t: Transfer) -> Vec<f32> {
@@ -84,20 +85,7 @@ pub fn transfer_table(t: Transfer) -> Vec<f32> {
 
 #[inline]
 fn lookup(lut: &[f32], v: f32) -> f32 {
-    let x = v.clamp(0.0, 1.0) * (LUT_SIZE - 1) as f32;
-    let i = (x as usize).min(LUT_SIZE - 2);
-    let f = x - i as f32;
-    lut[i] + (lut[i + 1] - lut[i]) * f
-}
-
-#[inline]
-fn sample(plane: &[u8], stride: usize, x: usize, y: usize, two_bytes: bool) -> f32 {
-    if two_bytes {
-        let o = y * stride + 2 * x;
-        f32::from(u16::from_le_bytes([plane[o], plane[o + 1]]))
-    } else {
-        f32::from(plane[y * stride + x])
-    }
+    lut[(v.clamp(0.0, 1.0) * (LUT_SIZE - 1) as f32 + 0.5) as usize]
 }
 
 /// Convert one frame. Chroma is upsampled bilinearly with MPEG-2/H.264 siting
@@ -146,46 +134,80 @@ pub fn to_linear_rgb(
     let (gu, gv) = (-bu * kb / kg, -rv * kr / kg);
     let m = BT2020_TO_BT709.map(|r| r.map(|v| v as f32));
     let mut out = ImageF32::new(l.width, l.height, 3);
+    let read_row = |p: usize, y: usize, n: usize, dst: &mut Vec<f32>| {
+        dst.clear();
+        let row = &planes[p][y * l.strides[p]..];
+        if two {
+            dst.extend(
+                row.chunks_exact(2)
+                    .take(n)
+                    .map(|b| f32::from(u16::from_le_bytes([b[0], b[1]]))),
+            );
+        } else {
+            dst.extend(row[..n].iter().map(|v| f32::from(*v)));
+        }
+    };
     out.data
         .par_chunks_mut(l.width * 3)
         .enumerate()
-        .for_each(|(row, line)| {
-            // Chroma row position for this luma row.
-            let cy = if f.shift_y == 1 {
-                ((row as f32 - 0.5) * 0.5).max(0.0)
-            } else {
-                row as f32
-            };
-            let cy0 = (cy as usize).min(ch - 1);
-            let cy1 = (cy0 + 1).min(ch - 1);
-            let fy = cy - cy0 as f32;
-            for (x, px) in line.chunks_exact_mut(3).enumerate() {
-                let yv = (sample(planes[0], l.strides[0], x, row, two) - y_off) / y_span;
-                let cx = if f.shift_x == 1 {
-                    x as f32 * 0.5
+        .for_each_init(
+            || {
+                (
+                    Vec::new(),
+                    Vec::new(),
+                    Vec::new(),
+                    Vec::new(),
+                    Vec::new(),
+                    vec![0f32; cw],
+                    vec![0f32; cw],
+                )
+            },
+            |(yrow, u0, u1, v0, v1, cu, cv), (row, line)| {
+                // Chroma for this luma row, interpolated vertically (MPEG-2 siting:
+                // between the two luma rows a chroma row covers).
+                let cy = if f.shift_y == 1 {
+                    ((row as f32 - 0.5) * 0.5).max(0.0)
                 } else {
-                    x as f32
+                    row as f32
                 };
-                let cx0 = (cx as usize).min(cw - 1);
-                let cx1 = (cx0 + 1).min(cw - 1);
-                let fx = cx - cx0 as f32;
-                let bil = |p: usize| {
-                    let s = |xx, yy| sample(planes[p], l.strides[p], xx, yy, two);
-                    let top = s(cx0, cy0) + (s(cx1, cy0) - s(cx0, cy0)) * fx;
-                    let bot = s(cx0, cy1) + (s(cx1, cy1) - s(cx0, cy1)) * fx;
-                    (top + (bot - top) * fy - c_off) / c_span
-                };
-                let (u, v) = (bil(1), bil(2));
-                let rgb = [yv + rv * v, yv + gu * u + gv * v, yv + bu * u].map(|c| lookup(lut, c));
-                let rgb = if from_bt2020 {
-                    [0, 1, 2]
-                        .map(|r| (m[r][0] * rgb[0] + m[r][1] * rgb[1] + m[r][2] * rgb[2]).max(0.0))
-                } else {
-                    rgb
-                };
-                px.copy_from_slice(&rgb);
-            }
-        });
+                let cy0 = (cy as usize).min(ch - 1);
+                let cy1 = (cy0 + 1).min(ch - 1);
+                let fy = cy - cy0 as f32;
+                read_row(0, row, l.width, yrow);
+                read_row(1, cy0, cw, u0);
+                read_row(1, cy1, cw, u1);
+                read_row(2, cy0, cw, v0);
+                read_row(2, cy1, cw, v1);
+                for k in 0..cw {
+                    cu[k] = (u0[k] + (u1[k] - u0[k]) * fy - c_off) / c_span;
+                    cv[k] = (v0[k] + (v1[k] - v0[k]) * fy - c_off) / c_span;
+                }
+                for (x, px) in line.chunks_exact_mut(3).enumerate() {
+                    let yv = (yrow[x] - y_off) / y_span;
+                    // Horizontally co-sited with even luma columns.
+                    let (u, v) = if f.shift_x == 1 {
+                        let k = x >> 1;
+                        if x & 1 == 0 || k + 1 >= cw {
+                            (cu[k.min(cw - 1)], cv[k.min(cw - 1)])
+                        } else {
+                            (0.5 * (cu[k] + cu[k + 1]), 0.5 * (cv[k] + cv[k + 1]))
+                        }
+                    } else {
+                        (cu[x], cv[x])
+                    };
+                    let rgb =
+                        [yv + rv * v, yv + gu * u + gv * v, yv + bu * u].map(|c| lookup(lut, c));
+                    let rgb = if from_bt2020 {
+                        [0, 1, 2].map(|r| {
+                            (m[r][0] * rgb[0] + m[r][1] * rgb[1] + m[r][2] * rgb[2]).max(0.0)
+                        })
+                    } else {
+                        rgb
+                    };
+                    px.copy_from_slice(&rgb);
+                }
+            },
+        );
     Ok(out)
 }
 

@@ -183,8 +183,14 @@ impl AvReader {
                 ))
             }
         };
-        let ctx = ff::codec::context::Context::from_parameters(params)
+        let mut ctx = ff::codec::context::Context::from_parameters(params)
             .map_err(|e| file_error(path, format!("cannot read its codec parameters ({e})")))?;
+        // Frame threads, as many as the machine has (FFmpeg's default is one).
+        ctx.set_threading(ff::codec::threading::Config {
+            kind: ff::codec::threading::Type::Frame,
+            count: 0,
+            ..Default::default()
+        });
         let decoder = ctx.decoder().video().map_err(|e| {
             file_error(
                 path,

@@ -120,7 +120,7 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
         s.clipped_observations,
         s.clipped_near_mirror
             .map(|c| format!(
-                ", {:.0}% of those within {} degrees of the mirror direction",
+                "; {:.0}% clipped within {} degrees of the mirror direction",
                 100.0 * c,
                 svbrdf_fit::NEAR_MIRROR_DEG
             ))
