@@ -175,7 +175,8 @@ fn exposure_gains(
 
 /// The gain curve as a picture: time left to right, gain bottom to top (log scale),
 /// grey lines every stop, the brighter one at the geometric mean; dots blue where the
-/// frame had its own estimate, orange where it was interpolated.
+/// frame had its own estimate, orange where it was interpolated, grey where the gains
+/// were not applied (steady or fixed exposure).
 fn gain_plot(curve: &ExposureCurve) -> ImageF32 {
     let (w, h) = (480usize, 160usize);
     let mut img = ImageF32::new(w, h, 3);
@@ -199,7 +200,9 @@ fn gain_plot(curve: &ExposureCurve) -> ImageF32 {
     let n = curve.frames.len().max(2) - 1;
     for (k, (f, e)) in curve.frames.iter().zip(&ev).enumerate() {
         let x = 6.0 + (w as f64 - 12.0) * k as f64 / n as f64;
-        let colour = if f.samples > 0 {
+        let colour = if curve.mode != ExposureMode::Estimated {
+            [0.55, 0.55, 0.55]
+        } else if f.samples > 0 {
             [0.2, 0.5, 1.0]
         } else {
             [1.0, 0.6, 0.1]

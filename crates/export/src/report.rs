@@ -653,7 +653,7 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
             ),
             (
                 "exposure.png",
-                "exposure gain per flash frame over time (lines every stop, the brighter one at the mean; orange: interpolated); the fit divides each frame by its gain unless the record says the exposure was steady",
+                "exposure gain per flash frame over time (lines every stop, the brighter one at the mean; orange: interpolated; grey: not applied, the exposure was steady); the fit divides each frame by its gain",
             ),
         ]
         .iter()
