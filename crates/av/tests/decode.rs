@@ -33,7 +33,17 @@ fn encode(out: &Path, t: Transfer, white: f64, ten_bit: bool, hevc: bool, extra:
     // A `settb=...` chain in `extra` joins the conversion's filter chain.
     let (pre, extra): (Vec<&str>, Vec<&str>) = extra.iter().partition(|a| a.starts_with("settb"));
     let pre = pre.first().map(|p| format!("{p},")).unwrap_or_default();
-    let vf = |f: &str| -> &'static str { Box::leak(format!("{pre}{f}").into_boxed_str()) };
+    // `full-range` in `extra`: full-range Y'CbCr, tagged so.
+    let full = extra.contains(&"full-range");
+    let extra: Vec<&str> = extra.into_iter().filter(|a| *a != "full-range").collect();
+    let range = if full { "pc" } else { "tv" };
+    let vf = |f: &str| -> &'static str {
+        Box::leak(
+            format!("{pre}{f}")
+                .replace("out_range=tv", &format!("out_range={range}"))
+                .into_boxed_str(),
+        )
+    };
     let Ok(mut child) = Command::new("ffmpeg")
         .args(["-v", "error", "-y", "-f", "rawvideo", "-pix_fmt", "rgb48le", "-s"])
         .arg(format!("{W}x{H}"))
@@ -43,22 +53,22 @@ fn encode(out: &Path, t: Transfer, white: f64, ten_bit: bool, hevc: bool, extra:
             (Transfer::Sdr, false) => vec![
                 "-vf", vf("scale=out_color_matrix=bt709:out_range=tv:flags=accurate_rnd+full_chroma_int,format=yuv420p"),
                 "-c:v", "libx264", "-qp", "0",
-                "-color_primaries", "bt709", "-color_trc", "bt709", "-colorspace", "bt709", "-color_range", "tv",
+                "-color_primaries", "bt709", "-color_trc", "bt709", "-colorspace", "bt709", "-color_range", range,
             ],
             (Transfer::Sdr, true) => vec![
                 "-vf", vf("scale=out_color_matrix=bt709:out_range=tv:flags=accurate_rnd+full_chroma_int,format=yuv420p10le"),
                 "-c:v", "libx265", "-x265-params", "lossless=1:log-level=error",
-                "-color_primaries", "bt709", "-color_trc", "bt709", "-colorspace", "bt709", "-color_range", "tv",
+                "-color_primaries", "bt709", "-color_trc", "bt709", "-colorspace", "bt709", "-color_range", range,
             ],
             (Transfer::Hlg, _) => vec![
                 "-vf", vf("scale=out_color_matrix=bt2020:out_range=tv:flags=accurate_rnd+full_chroma_int,format=yuv420p10le"),
                 "-c:v", "libx265", "-x265-params", "lossless=1:log-level=error",
-                "-color_primaries", "bt2020", "-color_trc", "arib-std-b67", "-colorspace", "bt2020nc", "-color_range", "tv",
+                "-color_primaries", "bt2020", "-color_trc", "arib-std-b67", "-colorspace", "bt2020nc", "-color_range", range,
             ],
             (Transfer::Pq, _) => vec![
                 "-vf", vf("scale=out_color_matrix=bt2020:out_range=tv:flags=accurate_rnd+full_chroma_int,format=yuv420p10le"),
                 "-c:v", "libx265", "-x265-params", "lossless=1:log-level=error",
-                "-color_primaries", "bt2020", "-color_trc", "smpte2084", "-colorspace", "bt2020nc", "-color_range", "tv",
+                "-color_primaries", "bt2020", "-color_trc", "smpte2084", "-colorspace", "bt2020nc", "-color_range", range,
             ],
         })
         .args(["-tag:v", if hevc { "hvc1" } else { "avc1" }])
@@ -147,6 +157,25 @@ fn check(t: Transfer, ten_bit: bool, hevc: bool, tol: f64) {
 #[test]
 fn sdr_8_bit_h264_decodes_to_its_linear_colours() {
     check(Transfer::Sdr, false, false, 0.025);
+}
+
+#[test]
+fn full_range_8_bit_h264_decodes_to_its_linear_colours() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("full.mp4");
+    // FFmpeg's own conversion to full range, tagged so (as some Android phones record).
+    if !encode(&p, Transfer::Sdr, 1.0, false, false, &["full-range"]) {
+        eprintln!("skipped: ffmpeg is not on PATH");
+        return;
+    }
+    let mut r = AvReader::open(&p).unwrap();
+    assert!(r.info().full_range, "{:?}", r.info());
+    let f = r.read().unwrap().unwrap();
+    // White stays white (limited-range decoding would clip it) and a mid grey at its level.
+    let px = f.rgb.pixel(4 * 8 + 4, 3 * 8 + 4);
+    assert!(px.iter().all(|v| (v - 1.0).abs() < 0.03), "{px:?}");
+    let px = f.rgb.pixel(8 + 4, 4);
+    assert!(px.iter().all(|v| (v - 0.18).abs() < 0.01), "{px:?}");
 }
 
 #[test]

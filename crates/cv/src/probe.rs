@@ -219,10 +219,12 @@ impl VideoProbe {
     }
 
     /// Whether the frames need FFmpeg's libraries to reach linear light right: more
-    /// than 8 bits, an HDR transfer (HLG, PQ) or BT.2020 colours. OpenCV would decode
-    /// them to 8-bit SDR.
+    /// than 8 bits, an HDR transfer (HLG, PQ), BT.2020 colours, or full range (some
+    /// Android phones): OpenCV would decode them to 8-bit SDR, limited range.
     pub fn needs_linear_decoding(&self) -> bool {
         self.bit_depth > 8
+            || self.range.as_deref() == Some("pc")
+            || self.pix_fmt.starts_with("yuvj")
             || matches!(
                 self.transfer.as_deref(),
                 Some("arib-std-b67" | "smpte2084" | "bt2020-10" | "bt2020-12")
@@ -331,6 +333,9 @@ mod tests {
         sdr8.bit_depth = 8;
         sdr8.pix_fmt = "yuv420p".into();
         assert!(!sdr8.needs_linear_decoding());
+        let mut full = sdr8.clone();
+        full.range = Some("pc".into());
+        assert!(full.needs_linear_decoding());
         let e = probe(Some("bt709"), Some("bt709"), "4:3")
             .check_supported(p)
             .unwrap_err()
