@@ -10,7 +10,6 @@ use svbrdf_core::geometry::Vec2;
 use svbrdf_core::image::ImageU8;
 use svbrdf_cv::aruco::{detect_markers, Dictionary};
 use svbrdf_cv::features::{downscaled, sift, Features};
-use svbrdf_cv::probe::VideoProbe;
 use svbrdf_cv::video::{luma_frame_of, LumaFrame, VideoReader};
 
 /// Fewest frames a flash video may hold.
@@ -185,13 +184,13 @@ fn process(
 
 /// Decode every `frame_step`-th frame on one thread while the others process the
 /// previous batch in parallel (decoding 4K H.264 is a large share of the work).
-/// Returns the frames and the stream's description.
+/// Returns the frames and how the stream was decoded.
 pub fn decode_frames(
     video: &Path,
     cfg: &AlignConfig,
     dict: Dictionary,
     progress: &dyn Progress,
-) -> Result<(Vec<FrameData>, VideoProbe), AlignError> {
+) -> Result<(Vec<FrameData>, crate::VideoDecoding), AlignError> {
     let mut reader = VideoReader::open(video)?;
     if let Some(n) = reader.probe().expected_frames() {
         if n < MIN_VIDEO_FRAMES {
@@ -203,7 +202,7 @@ pub fn decode_frames(
         }
     }
     let info = reader.info();
-    let probe = reader.probe().clone();
+    let decoding = crate::VideoDecoding::of(reader.probe(), &reader.decoding());
     let step = u64::from(cfg.camera.frame_step);
     // Windows of 2 * radius + 1 frames centred on every `step`-th frame (the first
     // window starts at frame 0).
@@ -315,7 +314,7 @@ pub fn decode_frames(
             video.display()
         )));
     }
-    Ok((out, probe))
+    Ok((out, decoding))
 }
 
 /// A frame chosen from its window, with its coarse image and blur metric.

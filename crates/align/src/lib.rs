@@ -219,9 +219,8 @@ fn sdr_transfer() -> svbrdf_core::color::Transfer {
 }
 
 impl VideoDecoding {
-    /// From FFmpeg's description of the stream.
-    pub fn of(p: &svbrdf_cv::probe::VideoProbe) -> Self {
-        let linear = p.needs_linear_decoding();
+    /// From FFmpeg's description of the stream and what the reader did with it.
+    pub fn of(p: &svbrdf_cv::probe::VideoProbe, d: &svbrdf_cv::video::Decoding) -> Self {
         Self {
             codec: p.codec.clone(),
             pix_fmt: p.pix_fmt.clone(),
@@ -231,13 +230,9 @@ impl VideoDecoding {
             decoded_with: p.decoding_matrix(),
             primaries_tag: p.primaries.clone(),
             bit_depth: p.bit_depth,
-            transfer: match p.transfer.as_deref() {
-                Some("arib-std-b67") => svbrdf_core::color::Transfer::Hlg,
-                Some("smpte2084") => svbrdf_core::color::Transfer::Pq,
-                _ => svbrdf_core::color::Transfer::Sdr,
-            },
-            from_bt2020: linear && p.primaries.as_deref() == Some("bt2020"),
-            decoder: if linear { "ffmpeg-libraries" } else { "opencv" }.into(),
+            transfer: d.transfer,
+            from_bt2020: d.from_bt2020,
+            decoder: d.decoder.into(),
         }
     }
 }
@@ -384,10 +379,10 @@ pub fn align(
     timer.lap("reference");
 
     // Frames: decode, blur metric, markers, features.
-    let (decoded, ordered, probe) = match (&inputs.video, &inputs.photos) {
+    let (decoded, ordered, decoding) = match (&inputs.video, &inputs.photos) {
         (Some(v), None) => {
-            let (frames, probe) = frames::decode_frames(v, cfg, dict, progress)?;
-            (frames, true, Some(probe))
+            let (frames, decoding) = frames::decode_frames(v, cfg, dict, progress)?;
+            (frames, true, Some(decoding))
         }
         (None, Some(d)) => (frames::read_photos(d, cfg, dict, progress)?, false, None),
         _ => {
@@ -501,7 +496,7 @@ pub fn align(
         warnings,
         checks,
         covered,
-        probe.as_ref().map(VideoDecoding::of),
+        decoding,
         progress,
     )
 }

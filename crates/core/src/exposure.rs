@@ -112,8 +112,8 @@ pub fn estimate_gains(
     times: Option<&[f64]>,
     cfg: &ExposureConfig,
 ) -> Result<GainEstimate, ExposureError> {
-    // Keep valid samples of points seen by at least two frames.
-    // Per point: the first frame that saw it, and whether another did too.
+    // Keep valid samples of points seen by at least two frames. Per point: the first
+    // frame that saw it, and whether another did too.
     let mut frames_of_point: Vec<(u32, bool)> = vec![(u32::MAX, false); points];
     for s in samples {
         if let Some(e) = frames_of_point.get_mut(s.point as usize) {
@@ -154,8 +154,7 @@ pub fn estimate_gains(
         let k = (v.floor() as usize).min(nodes - 2);
         (k, (v - k as f64).clamp(0.0, 1.0))
     };
-    let bins = nodes;
-    let mut count_in_bin = vec![0usize; bins];
+    let mut count_in_bin = vec![0usize; nodes];
     for s in &used {
         count_in_bin[bin_of(s).0] += 1;
     }
@@ -168,6 +167,16 @@ pub fn estimate_gains(
     for s in &used {
         counts[s.frame as usize] += 1;
     }
+    // Frames with enough samples for a gain of their own; the others are interpolated.
+    let own_frame: Vec<bool> = counts.iter().map(|n| *n >= cfg.min_frame_samples).collect();
+    let own: Vec<usize> = (0..frames).filter(|&f| own_frame[f]).collect();
+    if own.len() < 2 {
+        return Err(ExposureError::TooFew(format!(
+            "{} frames with at least {} samples (expected at least 2)",
+            own.len(),
+            cfg.min_frame_samples
+        )));
+    }
     let model = Model {
         used: &used,
         bin_of: &bin_of,
@@ -178,7 +187,7 @@ pub fn estimate_gains(
     // and per point a_p, c_p (eliminated in each step: their blocks are 2x2).
     let mut x = Params {
         u: vec![0.0; frames],
-        s: vec![0.0; bins],
+        s: vec![0.0; nodes],
         a: vec![0.0; points],
         c: vec![0.0; points],
     };
@@ -192,7 +201,6 @@ pub fn estimate_gains(
             x.a[p] = if den[p] > 0.0 { num[p] / den[p] } else { 0.0 };
         }
     }
-    let own_frame: Vec<bool> = counts.iter().map(|n| *n >= cfg.min_frame_samples).collect();
     // The same model with every gain held at 1: how much the gains explain.
     let fixed_model = Model {
         frozen_gains: true,
@@ -202,20 +210,10 @@ pub fn estimate_gains(
     let (x, scale) = solve(&model, x, cfg.rounds, ref_bin, &own_frame);
     let g: Vec<f64> = x.u.iter().map(|u| u.exp()).collect();
     // Frames with too few samples: interpolate log gain over time.
-    let own: Vec<usize> = (0..frames)
-        .filter(|&f| counts[f] >= cfg.min_frame_samples)
-        .collect();
-    if own.len() < 2 {
-        return Err(ExposureError::TooFew(format!(
-            "{} frames with at least {} samples (expected at least 2)",
-            own.len(),
-            cfg.min_frame_samples
-        )));
-    }
     let t = |f: usize| times.and_then(|t| t.get(f).copied()).unwrap_or(f as f64);
     let mut gains = g.clone();
     for f in 0..frames {
-        if counts[f] >= cfg.min_frame_samples {
+        if own_frame[f] {
             continue;
         }
         let before = own.iter().rev().find(|&&k| t(k) <= t(f));
@@ -243,13 +241,7 @@ pub fn estimate_gains(
     Ok(GainEstimate {
         gains,
         frame_samples: (0..frames)
-            .map(|f| {
-                if counts[f] >= cfg.min_frame_samples {
-                    counts[f]
-                } else {
-                    0
-                }
-            })
+            .map(|f| if own_frame[f] { counts[f] } else { 0 })
             .collect(),
         residual_spread: scale,
         residual_spread_fixed: spread_fixed,

@@ -187,15 +187,7 @@ impl VideoReader {
                 if !self.decode_mat()? {
                     return Ok(None);
                 }
-                let t = if self.next_index == 0 {
-                    // Times count from the first frame (streams may start later).
-                    self.opencv_t0 = 0.0;
-                    self.opencv_t0 = self.opencv_time().unwrap_or(0.0);
-                    0.0
-                } else {
-                    self.opencv_time()
-                        .unwrap_or(self.time_s + 1.0 / self.info.fps.max(1e-9))
-                };
+                let t = self.opencv_frame_time();
                 let Backend::OpenCv { frame, .. } = &self.backend else {
                     return Ok(None);
                 };
@@ -204,17 +196,25 @@ impl VideoReader {
         }
     }
 
-    /// The OpenCV backend's time of the frame just decoded, from its timestamp.
-    fn opencv_time(&self) -> Option<f64> {
+    /// The OpenCV backend's time of the frame just decoded (index `next_index`),
+    /// seconds from the first frame, from its timestamp. At the end of some streams
+    /// OpenCV reports 0: a time not after the last frame's is replaced by the last
+    /// one plus a frame interval.
+    fn opencv_frame_time(&mut self) -> f64 {
         let Backend::OpenCv { cap, .. } = &self.backend else {
-            return None;
+            return self.time_s;
         };
-        // At the end of some streams OpenCV reports 0: only a time after the last
-        // frame's counts (else the caller steps one frame interval on).
-        cap.get(videoio::CAP_PROP_POS_MSEC)
+        let ms = cap
+            .get(videoio::CAP_PROP_POS_MSEC)
             .ok()
-            .map(|ms| ms / 1000.0 - self.opencv_t0)
-            .filter(|t| t.is_finite() && (*t > self.time_s || self.next_index == 0))
+            .filter(|ms| ms.is_finite());
+        if self.next_index == 0 {
+            self.opencv_t0 = ms.map_or(0.0, |ms| ms / 1000.0);
+            return 0.0;
+        }
+        ms.map(|ms| ms / 1000.0 - self.opencv_t0)
+            .filter(|t| *t > self.time_s)
+            .unwrap_or(self.time_s + 1.0 / self.info.fps.max(1e-9))
     }
 
     /// Stream properties.
@@ -238,7 +238,6 @@ impl VideoReader {
                     transfer: i.transfer,
                     from_bt2020: i.primaries == svbrdf_av::Primaries::Bt2020,
                     bits: i.format.bits,
-                    rotation_deg: Some(i.rotation_deg),
                 }
             }
             Backend::OpenCv { .. } => Decoding {
@@ -246,7 +245,6 @@ impl VideoReader {
                 transfer: svbrdf_core::color::Transfer::Sdr,
                 from_bt2020: false,
                 bits: 8,
-                rotation_deg: None,
             },
         }
     }
@@ -294,8 +292,7 @@ impl VideoReader {
                 let grabbed = cap
                     .grab()
                     .ctx(|| format!("decoding {}", self.path.display()))?;
-                let fallback = self.time_s + 1.0 / self.info.fps.max(1e-9);
-                grabbed.then(|| self.opencv_time().unwrap_or(fallback))
+                grabbed.then(|| self.opencv_frame_time())
             }
         };
         if let Some(t) = t {
@@ -360,8 +357,7 @@ impl VideoReader {
         if !self.decode_mat()? {
             return Ok(None);
         }
-        let fallback = self.time_s + 1.0 / self.info.fps.max(1e-9);
-        self.time_s = self.opencv_time().unwrap_or(fallback);
+        self.time_s = self.opencv_frame_time();
         self.next_index += 1;
         let Backend::OpenCv { frame, .. } = &self.backend else {
             return Ok(None);
@@ -381,9 +377,6 @@ pub struct Decoding {
     pub from_bt2020: bool,
     /// Bits per sample kept through to the observations.
     pub bits: u32,
-    /// Rotation applied, degrees clockwise (FFmpeg's libraries only; OpenCV applies
-    /// the tag itself).
-    pub rotation_deg: Option<u32>,
 }
 
 /// A 3x3 map on RGB as an OpenCV matrix acting on BGR pixels.

@@ -186,17 +186,7 @@ fn rotation_metadata_gives_upright_frames() {
     let (fa, fb) = (a.read().unwrap().unwrap(), b.read().unwrap().unwrap());
     assert_eq!((fb.width, fb.height), (fa.height, fa.width));
     // Same pixels, turned by a quarter either way.
-    let (w, h) = (fa.width, fa.height);
-    let cw = (0..h).all(|y| {
-        (0..w)
-            .step_by(7)
-            .all(|x| fa.pixel(x, y) == fb.pixel(h - 1 - y, x))
-    });
-    let ccw = (0..h).all(|y| {
-        (0..w)
-            .step_by(7)
-            .all(|x| fa.pixel(x, y) == fb.pixel(y, w - 1 - x))
-    });
+    let (cw, ccw) = crate::util::quarter_turns(&fa, &fb);
     assert!(
         cw || ccw,
         "rotated frame does not match the original turned by 90 degrees"

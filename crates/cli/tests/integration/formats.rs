@@ -2,7 +2,8 @@
 //! HEVC, rotation tags on 10-bit video, and variable frame timing.
 
 use crate::util::{
-    align_synth, maps_accuracy, read_json as read, stderr, svbrdf, temp_dir, tiny_capture,
+    align_synth, maps_accuracy, quarter_turns, read_json as read, stderr, svbrdf, temp_dir,
+    tiny_capture,
 };
 
 /// Synthesize, align and fit a tiny capture; (align.json, fit.json, bench accuracy).
@@ -187,16 +188,7 @@ fn ten_bit_video_turned_by_90_or_270_degrees_comes_out_upright() {
         assert_eq!(r.decoding().decoder, "ffmpeg-libraries");
         let fb = r.read().unwrap().unwrap();
         assert_eq!((fb.width, fb.height), (h, w), "{deg}");
-        let cw = (0..h).all(|y| {
-            (0..w)
-                .step_by(7)
-                .all(|x| fa.pixel(x, y) == fb.pixel(h - 1 - y, x))
-        });
-        let ccw = (0..h).all(|y| {
-            (0..w)
-                .step_by(7)
-                .all(|x| fa.pixel(x, y) == fb.pixel(y, w - 1 - x))
-        });
+        let (cw, ccw) = quarter_turns(&fa, &fb);
         assert!(cw != ccw, "{deg}: not the original turned by a quarter");
         turned.push(cw);
     }

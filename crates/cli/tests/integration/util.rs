@@ -237,3 +237,24 @@ pub fn maps_accuracy(maps: &Path, cap: &Path) -> serde_json::Value {
     assert!(o.status.success(), "{}", stderr(&o));
     json_lines(&o)[0]["accuracy"].clone()
 }
+
+/// Whether `b` is `a` turned a quarter clockwise, and whether counter-clockwise
+/// (every 7th column compared exactly).
+pub fn quarter_turns(
+    a: &svbrdf_core::image::ImageU8,
+    b: &svbrdf_core::image::ImageU8,
+) -> (bool, bool) {
+    let (w, h) = (a.width, a.height);
+    let turned = |to: &dyn Fn(usize, usize) -> (usize, usize)| {
+        (0..h).all(|y| {
+            (0..w).step_by(7).all(|x| {
+                let (bx, by) = to(x, y);
+                a.pixel(x, y) == b.pixel(bx, by)
+            })
+        })
+    };
+    (
+        turned(&|x, y| (h - 1 - y, x)),
+        turned(&|x, y| (y, w - 1 - x)),
+    )
+}
