@@ -335,6 +335,7 @@ pub fn load_truth(synth_dir: &std::path::Path) -> Result<svbrdf_fit::evaluate::T
         light_intensity: truth.light_intensity * white,
         mask: read(&truth.maps.mask)?,
         holdout,
+        model: truth.config.brdf,
     })
 }
 
@@ -741,7 +742,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
     if let (false, Some(t)) = (a.truth_blur.is_empty(), &a.truth) {
         let truth = load_truth(t)?;
         for &sigma in &a.truth_blur {
-            let acc = svbrdf_fit::evaluate::blurred_truth(&truth, &svbrdf_core::brdf::Ward, sigma);
+            let acc = svbrdf_fit::evaluate::blurred_truth(&truth, sigma);
             println!(
                 "{}",
                 json!({"bench": "resolution_floor", "truth": t.display().to_string(), "sigma_px": sigma, "accuracy": acc})

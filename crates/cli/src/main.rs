@@ -128,6 +128,10 @@ struct SynthArgs {
     /// seconds, J this many seconds (less than 0.4 frame intervals).
     #[arg(long, value_name = "J")]
     frame_jitter: Option<f64>,
+    /// Reflectance model the material is rendered with: ward (default, the fit's own
+    /// model) or ggx (with Fresnel; fit it with Ward to measure model mismatch).
+    #[arg(long, value_parser = ["ward", "ggx"])]
+    brdf: Option<String>,
     /// Also render a second, no-flash camera at an oblique angle (paper section 3.3).
     #[arg(long)]
     second_camera: bool,
@@ -526,6 +530,9 @@ fn synth_config(a: &SynthArgs) -> Result<SynthConfig> {
     }
     if let Some(j) = a.frame_jitter {
         c.video.frame_jitter_s = j;
+    }
+    if let Some(b) = &a.brdf {
+        c.brdf = serde_json::from_value(serde_json::Value::String(b.clone()))?;
     }
     if let Some(target) = a.auto_exposure {
         c.video.auto_exposure = Some(svbrdf_synth::config::AutoExposureSpec {

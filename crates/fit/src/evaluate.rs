@@ -5,7 +5,7 @@
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use svbrdf_core::brdf::{BrdfModel, BrdfParams};
+use svbrdf_core::brdf::{BrdfModel, BrdfParams, ModelKind};
 use svbrdf_core::geometry::{Vec2, Vec3};
 use svbrdf_core::image::ImageF32;
 use svbrdf_core::plane::PlaneGrid;
@@ -30,6 +30,8 @@ pub struct Truth {
     pub mask: ImageF32,
     /// Held-out images with their light and camera positions (cm).
     pub holdout: Vec<(ImageF32, Vec3, Vec3)>,
+    /// The reflectance model the truth was rendered with.
+    pub model: ModelKind,
 }
 
 /// Accuracy figures.
@@ -274,8 +276,9 @@ pub fn relight_by_confidence(
 /// pixel per video pixel cannot give maps sharper than a fraction of a pixel, so these
 /// figures bound what any fit that does not reconstruct detail below that scale can
 /// reach. The simulator's own renderer looks material parameters up bilinearly, which
-/// averaged over sample positions is a one-pixel tent (sigma = 0.41 pixel).
-pub fn blurred_truth(truth: &Truth, model: &dyn BrdfModel, sigma_px: f64) -> Accuracy {
+/// averaged over sample positions is a one-pixel tent (sigma = 0.41 pixel). The maps
+/// are rendered with the truth's own model.
+pub fn blurred_truth(truth: &Truth, sigma_px: f64) -> Accuracy {
     let (d, s, r, n) = (
         gaussian_blur(&truth.diffuse, sigma_px),
         gaussian_blur(&truth.specular, sigma_px),
@@ -292,7 +295,7 @@ pub fn blurred_truth(truth: &Truth, model: &dyn BrdfModel, sigma_px: f64) -> Acc
         })
         .collect();
     let i = truth.light_intensity;
-    evaluate(&truth.grid, &params, model, [i; 3], truth)
+    evaluate(&truth.grid, &params, truth.model.model(), [i; 3], truth)
 }
 
 /// Separable Gaussian blur (clamped at the border); `sigma_px <= 0` copies.

@@ -6,6 +6,7 @@
 use std::path::PathBuf;
 
 use serde::{Deserialize, Serialize};
+use svbrdf_core::brdf::ModelKind;
 
 use crate::SynthError;
 
@@ -260,6 +261,11 @@ pub struct SynthConfig {
     pub holdout_lights_cm: Vec<[f64; 3]>,
     /// Held-out overhead camera position, cm.
     pub holdout_camera_cm: [f64; 3],
+    /// Reflectance model the scene is rendered with: Ward (the fit's default model)
+    /// or GGX (to measure what fitting Ward to another model's material costs). The
+    /// material's parameters are used as they are (GGX: `rho_s` is F0).
+    #[serde(default)]
+    pub brdf: ModelKind,
 }
 
 impl Default for SynthConfig {
@@ -341,6 +347,7 @@ impl SynthConfig {
             photos: None,
             holdout_lights_cm: default_holdout_lights(),
             holdout_camera_cm: [0.0, 0.0, 30.0],
+            brdf: ModelKind::Ward,
         }
     }
 

@@ -35,7 +35,7 @@ use std::path::{Path, PathBuf};
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
-use svbrdf_core::brdf::{BrdfModel, LightView, Prepared, Ward};
+use svbrdf_core::brdf::{LightView, ModelKind, Prepared};
 use svbrdf_core::capture::{Frame, FrameMapping, RegisteredCapture, Source, SourceKind};
 use svbrdf_core::fsutil::{write_json, StagingDir};
 use svbrdf_core::geometry::{
@@ -176,7 +176,13 @@ pub fn synthesize(
     // Ground-truth maps.
     progress.stage("ground-truth maps", 1);
     let gt_dir = dir.join("ground_truth");
-    let maps = write_truth_maps(&scene, region, cfg.map_px_per_cm, &gt_dir.join("maps"))?;
+    let maps = write_truth_maps(
+        &scene,
+        region,
+        cfg.map_px_per_cm,
+        cfg.brdf,
+        &gt_dir.join("maps"),
+    )?;
     files.push("ground_truth/maps/".into());
     progress.finish();
 
@@ -202,6 +208,7 @@ pub fn synthesize(
         Lighting {
             intensity: 0.0,
             ambient: cfg.light.reference_ambient,
+            model: cfg.brdf,
         },
         r.supersample,
     );
@@ -270,6 +277,7 @@ pub fn synthesize(
     let lighting = Lighting {
         intensity: cfg.light.flash_intensity,
         ambient: cfg.light.ambient,
+        model: cfg.brdf,
     };
     let mut blur_rng = ChaCha8Rng::seed_from_u64(cfg.seed ^ 0xB1B1);
     let mut writer = if v.format == VideoFormat::H264Sdr8 && v.frame_jitter_s == 0.0 {
@@ -730,6 +738,7 @@ fn write_truth_maps(
     scene: &Scene,
     region: Region,
     px_per_cm: f64,
+    model: ModelKind,
     dir: &Path,
 ) -> Result<MapFiles, SynthError> {
     let m = scene.material.crop(region)?;
@@ -793,7 +802,10 @@ fn write_truth_maps(
         &base(
             "roughness",
             Encoding::Linear,
-            "R = alpha_x, G = alpha_y (Ward)",
+            match model {
+                ModelKind::Ward => "R = alpha_x, G = alpha_y (Ward)",
+                ModelKind::Ggx => "R = alpha_x, G = alpha_y (GGX)",
+            },
         ),
     )?;
     write_exr(
@@ -883,7 +895,7 @@ fn render_holdout(
                     let p = grid.pixel_centre(c, r);
                     let (params, n) = scene.surface(p);
                     let obs = LightView::from_points(Vec3::new(p.x, p.y, 0.0), light_v, cam);
-                    let l = Ward.radiance(
+                    let l = cfg.brdf.model().radiance(
                         &Prepared::from_normal(params, n),
                         &obs,
                         cfg.light.flash_intensity,

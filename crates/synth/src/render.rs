@@ -1,12 +1,12 @@
 //! The camera simulator: ray-casts each pixel onto the plane, shades it with the Ward
-//! model under the flash (eq. 9) plus weak ambient light, averages sub-exposures for
-//! motion blur, adds sensor noise and encodes to 8-bit sRGB.
+//! model (or GGX, `SynthConfig::brdf`) under the flash (eq. 9) plus weak ambient
+//! light, averages sub-exposures for motion blur, adds sensor noise and encodes.
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha8Rng;
 use rand_distr::{Distribution, StandardNormal};
 use rayon::prelude::*;
-use svbrdf_core::brdf::{BrdfModel, LightView, Prepared, Ward};
+use svbrdf_core::brdf::{LightView, ModelKind, Prepared};
 use svbrdf_core::color::Srgb8Encoder;
 use svbrdf_core::geometry::{Camera, UndistortTable, Vec2, Vec3};
 use svbrdf_core::image::{ImageF32, ImageU8};
@@ -32,6 +32,8 @@ pub struct Lighting {
     pub intensity: f64,
     /// Ambient term: adds `ambient * rho_d`.
     pub ambient: f64,
+    /// Reflectance model of the material.
+    pub model: ModelKind,
 }
 
 /// Linear radiance seen through one pixel position by one exposure.
@@ -55,7 +57,10 @@ pub fn shade(
     if let Some(light) = e.light.filter(|_| row >= e.first_lit_row) {
         let prep = Prepared::for_evaluation(params, n);
         let obs = LightView::from_points(surf, light, e.camera.pose.centre);
-        let l = Ward.radiance(&prep, &obs, lighting.intensity);
+        let l = lighting
+            .model
+            .model()
+            .radiance(&prep, &obs, lighting.intensity);
         for c in 0..3 {
             out[c] += l[c];
         }
