@@ -390,6 +390,7 @@ pub fn fit_accuracy(
         light_intensity: None,
         no_refine: true,
         seed: None,
+        select_folds: Some(0),
     })?;
     let grid = svbrdf_fit::output_grid(&capture, &cfg)?;
     let t = Instant::now();
@@ -710,6 +711,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
                 light_intensity: None,
                 no_refine: false,
                 seed: None,
+                select_folds: None,
             },
             flip: None,
             overwrite: false,

@@ -49,6 +49,11 @@ pub struct FitOptions {
     /// Seed of the clustering's random choices.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Choose the settings (specular lobe or none, cluster splitting, refinement
+    /// prior, per-pixel specular) by how well each predicts frames held out in this
+    /// many folds (default 3; 0 fits with the settings as given).
+    #[arg(long, value_name = "K")]
+    pub select_folds: Option<usize>,
 }
 
 pub fn fit_config(a: &FitOptions) -> Result<FitConfig> {
@@ -78,6 +83,9 @@ pub fn fit_config(a: &FitOptions) -> Result<FitConfig> {
     }
     if let Some(s) = a.seed {
         c.seed = s;
+    }
+    if let Some(k) = a.select_folds {
+        c.select_folds = k;
     }
     c.validate()?;
     Ok(c)
@@ -129,6 +137,20 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
         s.pixels,
         cfg.min_observations
     );
+    if let Some(sel) = &s.selection {
+        say!("settings: {} ({})", sel.chosen, sel.reason);
+        if !sel.candidates.is_empty() {
+            say!(
+                "  held-out RMS per candidate ({} folds): {}",
+                sel.folds,
+                sel.candidates
+                    .iter()
+                    .map(|c| format!("{} {:.4}", c.name, c.held_out_rmse))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            );
+        }
+    }
     say!(
         "clusters: {} initial (k-means elbow), {} final, deepest split level {}; {} stopped at the iteration cap",
         s.initial_clusters,

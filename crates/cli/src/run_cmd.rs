@@ -191,6 +191,10 @@ pub struct RunArgs {
     /// Seed of the clustering's random choices.
     #[arg(long)]
     pub seed: Option<u64>,
+    /// Folds of held-out frames that choose the fit's settings (default 3; 0 fits
+    /// with the settings as given).
+    #[arg(long, value_name = "K")]
+    pub select_folds: Option<usize>,
     /// Rerun every stage even when its earlier result is still valid.
     #[arg(long)]
     pub force: bool,
@@ -228,6 +232,7 @@ impl RunArgs {
             no_refine: false,
             fixed_exposure: false,
             seed: None,
+            select_folds: None,
             force: true,
             overwrite: true,
             second: crate::SecondArgs::default(),
@@ -330,6 +335,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
             light_intensity: None,
             no_refine: a.no_refine,
             seed: a.seed,
+            select_folds: a.select_folds,
         },
         overwrite: true,
     };

@@ -524,10 +524,53 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
                 num(&s["rmse_final"], 4)
             ),
         ));
+        if let Some(sel) = s["selection"].as_object() {
+            rows.push((
+                "settings".into(),
+                format!(
+                    "{} ({})",
+                    sel["chosen"].as_str().unwrap_or("?"),
+                    sel["reason"].as_str().unwrap_or("")
+                ),
+            ));
+        }
         rows.push(("fit timings".into(), timings(&s["timings"])));
     }
     page.table(&rows);
     page.end();
+
+    // How the settings were chosen: error on held-out frames against training error.
+    if let Some(c) = fit.as_ref().and_then(|f| {
+        let c = f["summary"]["selection"]["candidates"].as_array()?;
+        (!c.is_empty()).then_some(c)
+    }) {
+        let folds = fit.as_ref().map_or(0, |f| {
+            f["summary"]["selection"]["folds"].as_u64().unwrap_or(0)
+        });
+        page.section(
+            "selection",
+            "How the settings were chosen",
+            &escape(&format!(
+                "Each setting was fitted {folds} times, each time without one stretch of the video, and asked to predict the frames it had not seen (linear RMS error). The training error always prefers more detail; the held-out error says which setting predicts new views. Least detailed first."
+            )),
+        );
+        let rows: Vec<(String, String)> = c
+            .iter()
+            .map(|c| {
+                (
+                    c["name"].as_str().unwrap_or("?").to_string(),
+                    format!(
+                        "held-out {}, training {}: {}",
+                        num(&c["held_out_rmse"], 4),
+                        num(&c["training_rmse"], 4),
+                        c["settings"].as_str().unwrap_or("")
+                    ),
+                )
+            })
+            .collect();
+        page.table(&rows);
+        page.end();
+    }
 
     // Renders.
     if let Some(m) = maps {

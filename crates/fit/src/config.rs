@@ -128,6 +128,12 @@ pub struct FitConfig {
     /// Fit a Lambertian material only (`rho_s = 0` everywhere): the baseline that
     /// shows what the specular fit adds (`svbrdf eval --diffuse-only`).
     pub diffuse_only: bool,
+    /// Choose the settings by prediction: fit each of [`crate::select::CANDIDATES`]
+    /// without each of this many folds of frames and keep the one that predicts the
+    /// held-out frames best (0: fit with the settings as given; else 2-8).
+    pub select_folds: usize,
+    /// Output-pixel step, per direction, of the validation fits (1: every pixel).
+    pub select_decimation: usize,
 }
 
 impl Default for FitConfig {
@@ -170,6 +176,8 @@ impl Default for FitConfig {
             refine_max_normal_change_deg: 3.0,
             strip_frames: 4,
             diffuse_only: false,
+            select_folds: 3,
+            select_decimation: 2,
         }
     }
 }
@@ -282,6 +290,12 @@ impl FitConfig {
         }
         if self.refine_rounds == 0 {
             return bad("refinement rounds", &self.refine_rounds, ">= 1");
+        }
+        if self.select_folds == 1 || self.select_folds > 8 {
+            return bad("validation folds", &self.select_folds, "0 (off) or 2-8");
+        }
+        if !(1..=8).contains(&self.select_decimation) {
+            return bad("validation pixel step", &self.select_decimation, "1-8");
         }
         if self.lobe_refits > 0 && self.refit_lobe_pixels == 0 {
             return bad("lobe refit pixels", &self.refit_lobe_pixels, ">= 1");

@@ -24,6 +24,7 @@ pub mod holdout;
 pub mod observations;
 pub mod output;
 pub mod render;
+pub mod select;
 pub mod solver;
 pub mod tree;
 
@@ -349,6 +350,9 @@ pub struct FitSummary {
     /// lobe rests on flanks, clipped peaks or nothing.
     #[serde(default)]
     pub clusters_without_peak: usize,
+    /// How the settings were chosen on held-out frames (absent when not validated).
+    #[serde(default)]
+    pub selection: Option<select::Selection>,
     /// Seconds per step.
     pub timings: Vec<(String, f64)>,
 }
@@ -532,8 +536,32 @@ fn refine(
         });
 }
 
-/// Fit maps to observations. `progress` sees the clustering, fitting and refinement.
+/// Fit maps to observations. `progress` sees the validation, clustering, fitting and
+/// refinement. With `select_folds` > 0 the settings are first chosen by how well they
+/// predict held-out frames ([`select`]), and the record lands in the summary.
 pub fn fit(
+    obs: &Observations,
+    capture: &RegisteredCapture,
+    cfg: &FitConfig,
+    progress: &dyn Progress,
+) -> Result<(FittedMaps, FitSummary), FitError> {
+    cfg.validate()?;
+    progress.stage("choosing settings on held-out frames", 1);
+    let selection = select::select(obs, capture, cfg)?;
+    progress.finish();
+    let Some((chosen, record)) = selection else {
+        return fit_once(obs, capture, cfg, progress);
+    };
+    let (maps, mut summary) = fit_once(obs, capture, &chosen, progress)?;
+    summary
+        .timings
+        .insert(0, ("choosing settings".to_string(), record.seconds));
+    summary.selection = Some(record);
+    Ok((maps, summary))
+}
+
+/// [`fit`] with the settings as given.
+pub(crate) fn fit_once(
     obs: &Observations,
     capture: &RegisteredCapture,
     cfg: &FitConfig,
@@ -781,6 +809,7 @@ pub fn fit(
             .iter()
             .filter(|c| c.is_some_and(|c| c[0] == 0.0))
             .count(),
+        selection: None,
     };
     Ok((
         FittedMaps {

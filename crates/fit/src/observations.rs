@@ -138,6 +138,62 @@ impl Observations {
         LightView::from_points(self.surface(px), f.light, f.camera)
     }
 
+    /// The observations of the frames `keep` selects (indexed like [`Self::frames`]),
+    /// on every `step`-th output pixel in each direction: pixel (c, r) of the coarser
+    /// grid (the region at `px_per_cm / step`) takes the observations of the fine pixel
+    /// nearest its centre's block middle. Frames stay indexed as before, so exposure
+    /// gains and frame ids carry over. Clipped counts are those of the kept
+    /// observations.
+    pub fn subset(&self, keep: &[bool], step: usize) -> Result<Self, FitError> {
+        let step = step.max(1);
+        let grid = if step == 1 {
+            self.grid
+        } else {
+            PlaneGrid::new(self.grid.region, self.grid.px_per_cm / step as f64)?
+        };
+        let (w, h) = (self.grid.width, self.grid.height);
+        let mut out = Self {
+            grid,
+            frames: self.frames.clone(),
+            start: Vec::with_capacity(grid.len() + 1),
+            frame: Vec::new(),
+            rgb: Vec::new(),
+            key: Vec::new(),
+            clipped: 0,
+            saturation: self.saturation,
+        };
+        out.start.push(0);
+        for r in 0..grid.height {
+            for c in 0..grid.width {
+                let (fc, fr) = if step == 1 {
+                    (c, r)
+                } else {
+                    (
+                        (c * step + step / 2).min(w - 1),
+                        (r * step + step / 2).min(h - 1),
+                    )
+                };
+                for o in self.range(fr * w + fc) {
+                    if !keep
+                        .get(usize::from(self.frame[o]))
+                        .copied()
+                        .unwrap_or(false)
+                    {
+                        continue;
+                    }
+                    out.frame.push(self.frame[o]);
+                    out.rgb.push(self.rgb[o]);
+                    out.key.push(self.key[o]);
+                    if self.rgb[o].contains(&CLIPPED) {
+                        out.clipped += 1;
+                    }
+                }
+                out.start.push(out.frame.len());
+            }
+        }
+        Ok(out)
+    }
+
     /// Per-pixel mean linear colour (zero where unobserved).
     pub fn mean_colors(&self) -> Vec<[f64; 3]> {
         (0..self.pixels())
@@ -553,6 +609,95 @@ mod tests {
                 .map(|o| (frame[o], rgb[o], key[o]))
                 .collect();
             assert_eq!(&got, e, "pixel {p}");
+        }
+    }
+
+    fn grid_observations(w: usize, h: usize, frames: usize) -> Observations {
+        let region = svbrdf_core::plane::Region {
+            x_min: 0.0,
+            x_max: w as f64,
+            y_min: 0.0,
+            y_max: h as f64,
+        };
+        let grid = PlaneGrid::new(region, 1.0).unwrap();
+        let per_frame: Vec<FrameObs> = (0..frames as u32)
+            .map(|f| {
+                (0..(w * h) as u32)
+                    .filter(|p| (p + f) % 4 != 0)
+                    .map(|p| (p, [p as u16, f as u16, if f == 2 { CLIPPED } else { 7 }], p))
+                    .collect()
+            })
+            .collect();
+        let (start, frame, rgb, key) = transpose(&per_frame, w * h);
+        Observations {
+            grid,
+            frames: (0..frames as u32)
+                .map(|id| FrameGeometry {
+                    id: 10 + id,
+                    camera: Vec3::new(0.0, 0.0, 10.0),
+                    light: Vec3::new(1.0, 0.0, 10.0),
+                    gain: 1.0,
+                })
+                .collect(),
+            start,
+            frame,
+            rgb,
+            key,
+            clipped: (w * h) as u64,
+            saturation: 0.9,
+        }
+    }
+
+    #[test]
+    fn subsets_of_frames_partition_the_observations() {
+        let obs = grid_observations(8, 6, 5);
+        let held = [false, true, true, false, false];
+        let keep: Vec<bool> = held.iter().map(|h| !h).collect();
+        let (a, b) = (obs.subset(&keep, 1).unwrap(), obs.subset(&held, 1).unwrap());
+        assert_eq!(a.len() + b.len(), obs.len());
+        assert_eq!(a.frames, obs.frames);
+        for p in 0..obs.pixels() {
+            let frames = |o: &Observations| o.range(p).map(|i| o.frame[i]).collect::<Vec<_>>();
+            let all = frames(&obs);
+            assert_eq!(
+                frames(&a),
+                all.iter()
+                    .copied()
+                    .filter(|f| keep[*f as usize])
+                    .collect::<Vec<_>>()
+            );
+            assert_eq!(
+                frames(&b),
+                all.iter()
+                    .copied()
+                    .filter(|f| held[*f as usize])
+                    .collect::<Vec<_>>()
+            );
+        }
+        // Only frame 2's observations are clipped, and only the held-out set has them.
+        assert_eq!(a.clipped, 0);
+        assert_eq!(
+            b.clipped,
+            b.frame.iter().filter(|f| **f == 2).count() as u64
+        );
+    }
+
+    #[test]
+    fn a_decimated_subset_takes_each_blocks_middle_pixel() {
+        let obs = grid_observations(8, 6, 3);
+        let d = obs.subset(&[true; 3], 2).unwrap();
+        assert_eq!((d.grid.width, d.grid.height), (4, 3));
+        for r in 0..3 {
+            for c in 0..4 {
+                let fine = (2 * r + 1) * 8 + 2 * c + 1;
+                let got: Vec<u32> = d.range(r * 4 + c).map(|o| d.key[o]).collect();
+                let want: Vec<u32> = obs.range(fine).map(|o| obs.key[o]).collect();
+                assert_eq!(got, want, "pixel ({c}, {r})");
+                // The coarse pixel's centre lies within the fine pixel's block.
+                let q = d.grid.pixel_centre(c, r);
+                let f = obs.grid.pixel_centre(2 * c + 1, 2 * r + 1);
+                assert!((q.x - f.x).abs() <= 0.5 && (q.y - f.y).abs() <= 0.5);
+            }
         }
     }
 

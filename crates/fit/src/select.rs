@@ -1,0 +1,353 @@
+//! Choosing the fit's complexity by prediction, not by training residual.
+//!
+//! The fit's settings trade detail against noise: whether there is a specular lobe at
+//! all, how readily clusters split, how hard the per-pixel refinement is pulled towards
+//! its cluster, whether each pixel may have its own specular albedo. The training
+//! residual always prefers the most detailed setting; what users render is the material
+//! under lights the video never showed. So before the fit, the capture's frames are cut
+//! into `2 k` contiguous stretches and fold `i` holds out stretches `i` and `i + k`
+//! (spread over the sweep, each stretch long enough that a held-out frame's neighbours
+//! are held out with it); every [`CANDIDATES`] setting is fitted without each fold and
+//! scored on the fold's observations (RMS of linear radiance, clipped channels as
+//! censored values, as the fit's own objective). The candidate with the lowest mean
+//! held-out error is then fitted on every frame; the measured defaults win unless
+//! another candidate predicts at least [`MARGIN`] better. To keep this affordable the
+//! validation fits use every `decimation`-th output pixel in each direction, and the
+//! refinement's prior is scaled by the share of frames a fold keeps, so that it weighs
+//! against the data as it will in the final fit.
+
+use std::time::Instant;
+
+use serde::{Deserialize, Serialize};
+use svbrdf_core::capture::RegisteredCapture;
+use svbrdf_core::progress::NoProgress;
+
+use crate::config::FitConfig;
+use crate::observations::Observations;
+use crate::{render, FitError};
+
+/// A setting the validation compares, as a change of the user's configuration.
+pub struct Candidate {
+    /// Short name (in `fit.json` and printed).
+    pub name: &'static str,
+    /// What it changes, in words.
+    pub settings: &'static str,
+    apply: fn(&mut FitConfig),
+}
+
+impl Candidate {
+    /// The configuration with this candidate's change.
+    pub fn config(&self, base: &FitConfig) -> FitConfig {
+        let mut c = base.clone();
+        (self.apply)(&mut c);
+        c
+    }
+}
+
+/// Name of the candidate that leaves the configuration as it is.
+pub const DEFAULT: &str = "default";
+
+/// Another candidate must predict the held-out frames at least this much better
+/// (relative RMS) than [`DEFAULT`] to replace it: the defaults are measured on many
+/// captures, one validation on one capture is noisier.
+pub const MARGIN: f64 = 0.01;
+
+/// The settings compared, from least to most detailed.
+pub const CANDIDATES: [Candidate; 5] = [
+    Candidate {
+        name: "diffuse-only",
+        settings: "no specular lobe (Lambertian)",
+        apply: |c| c.diffuse_only = true,
+    },
+    Candidate {
+        name: "fewer-clusters",
+        settings: "a cluster splits only if that lowers its error by 10% (min_split_gain 0.1)",
+        apply: |c| c.min_split_gain = c.min_split_gain.max(0.1),
+    },
+    Candidate {
+        name: "strong-prior",
+        settings: "per-pixel refinement held 8x closer to its cluster (refine_prior x 8)",
+        apply: |c| c.refine_prior *= 8.0,
+    },
+    Candidate {
+        name: DEFAULT,
+        settings: "the configured settings",
+        apply: |_| {},
+    },
+    Candidate {
+        name: "pixel-specular",
+        settings: "each pixel also refines its own specular albedo (refine_specular)",
+        apply: |c| c.refine_specular = true,
+    },
+];
+
+/// One candidate's scores.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct CandidateScore {
+    /// [`Candidate::name`].
+    pub name: String,
+    /// [`Candidate::settings`].
+    pub settings: String,
+    /// RMS error on the held-out folds' observations (linear radiance), all folds pooled.
+    pub held_out_rmse: f64,
+    /// The same per fold.
+    pub held_out_rmse_per_fold: Vec<f64>,
+    /// RMS re-rendering error on the frames each fold was fitted to (pooled): the
+    /// training residual, which always favours detail.
+    pub training_rmse: f64,
+}
+
+/// The validation's record (`fit.json` `summary.selection`).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Selection {
+    /// Number of folds.
+    pub folds: usize,
+    /// Output-pixel step of the validation fits, per direction.
+    pub decimation: usize,
+    /// Frame ids (the capture's) held out by each fold.
+    pub held_out_frames: Vec<Vec<u32>>,
+    /// Every candidate, least detailed first.
+    pub candidates: Vec<CandidateScore>,
+    /// The candidate fitted on every frame.
+    pub chosen: String,
+    /// Why, in one sentence.
+    pub reason: String,
+    /// Seconds the validation took.
+    pub seconds: f64,
+}
+
+/// Frames held out by each fold: `2 folds` contiguous stretches, fold `i` holding
+/// stretches `i` and `i + folds`. Indexed like `Observations::frames`.
+pub fn fold_masks(frames: usize, folds: usize) -> Vec<Vec<bool>> {
+    let stretches = 2 * folds;
+    (0..folds)
+        .map(|i| {
+            (0..frames)
+                .map(|f| {
+                    let s = f * stretches / frames.max(1);
+                    s == i || s == i + folds
+                })
+                .collect()
+        })
+        .collect()
+}
+
+/// Pooled RMS from (squared error sum, observation count) pairs.
+fn pooled(parts: &[(f64, usize)]) -> f64 {
+    let (se, n) = parts
+        .iter()
+        .fold((0.0, 0usize), |a, b| (a.0 + b.0, a.1 + b.1));
+    (se / (3 * n.max(1)) as f64).sqrt()
+}
+
+/// Squared error sum and observation count of `params` re-rendered against `obs`.
+fn squared_error(
+    obs: &Observations,
+    params: &[svbrdf_core::brdf::BrdfParams],
+    cfg: &FitConfig,
+    intensity: [f64; 3],
+) -> (f64, usize) {
+    let (_, frames) = render::rerender_check(obs, params, cfg.model.model(), intensity);
+    frames.iter().fold((0.0, 0), |a, f| {
+        (
+            a.0 + f.rmse * f.rmse * (3 * f.observations) as f64,
+            a.1 + f.observations,
+        )
+    })
+}
+
+/// Run the validation and return the configuration to fit with and the record.
+/// `None` when validation is off (`select_folds` 0) or the configuration forces the
+/// Lambertian baseline; with too few frames (fewer than 2 per stretch) or a fold that
+/// leaves too little observed, the configured settings are kept and the record says
+/// why.
+pub fn select(
+    obs: &Observations,
+    capture: &RegisteredCapture,
+    cfg: &FitConfig,
+) -> Result<Option<(FitConfig, Selection)>, FitError> {
+    let folds = cfg.select_folds;
+    if folds == 0 || cfg.diffuse_only {
+        return Ok(None);
+    }
+    let t = Instant::now();
+    let step = cfg.select_decimation;
+    let skipped = |reason: String| {
+        Some((
+            cfg.clone(),
+            Selection {
+                folds,
+                decimation: step,
+                held_out_frames: Vec::new(),
+                candidates: Vec::new(),
+                chosen: DEFAULT.to_string(),
+                reason,
+                seconds: t.elapsed().as_secs_f64(),
+            },
+        ))
+    };
+    if obs.frames.len() < 4 * folds {
+        return Ok(skipped(format!(
+            "not validated: {} frames, {folds} folds need at least {}; the configured settings are used",
+            obs.frames.len(),
+            4 * folds
+        )));
+    }
+    let masks = fold_masks(obs.frames.len(), folds);
+    let mut held_out = Vec::new();
+    // Per candidate: per fold (held-out sse, n), (training sse, n).
+    type PerFold = Vec<(f64, usize)>;
+    let mut scores: Vec<(PerFold, PerFold)> = vec![(Vec::new(), Vec::new()); CANDIDATES.len()];
+    for mask in &masks {
+        held_out.push(
+            obs.frames
+                .iter()
+                .zip(mask)
+                .filter(|(_, &m)| m)
+                .map(|(f, _)| f.id)
+                .collect::<Vec<u32>>(),
+        );
+        let keep: Vec<bool> = mask.iter().map(|m| !m).collect();
+        let train = obs.subset(&keep, step)?;
+        let test = obs.subset(mask, step)?;
+        let share = keep.iter().filter(|k| **k).count() as f64 / keep.len() as f64;
+        for (cand, score) in CANDIDATES.iter().zip(scores.iter_mut()) {
+            let mut c = cand.config(cfg);
+            c.select_folds = 0;
+            c.refine_prior *= share;
+            c.min_cluster_px = c.min_cluster_px.div_ceil(step * step).max(2);
+            // The coarser grid holds a 1/step^2 share of the pixels: a fold whose
+            // training frames leave too few pixels observed cannot be scored.
+            let (maps, summary) = match crate::fit_once(&train, capture, &c, &NoProgress) {
+                Ok(r) => r,
+                Err(FitError::NoData(why)) => {
+                    return Ok(skipped(format!(
+                        "not validated: without a fold's frames {why}; the configured settings are used"
+                    )))
+                }
+                Err(e) => return Err(e),
+            };
+            score.0.push(squared_error(
+                &test,
+                &maps.params,
+                &c,
+                summary.light_intensity,
+            ));
+            score.1.push(squared_error(
+                &train,
+                &maps.params,
+                &c,
+                summary.light_intensity,
+            ));
+        }
+    }
+    let candidates: Vec<CandidateScore> = CANDIDATES
+        .iter()
+        .zip(&scores)
+        .map(|(cand, (test, train))| {
+            let per_fold: Vec<f64> = test.iter().map(|p| pooled(&[*p])).collect();
+            CandidateScore {
+                name: cand.name.to_string(),
+                settings: cand.settings.to_string(),
+                held_out_rmse: pooled(test),
+                held_out_rmse_per_fold: per_fold,
+                training_rmse: pooled(train),
+            }
+        })
+        .collect();
+    let (chosen, reason) = choose(&candidates);
+    let chosen_cfg = CANDIDATES
+        .iter()
+        .find(|c| c.name == chosen)
+        .map_or_else(|| cfg.clone(), |c| c.config(cfg));
+    Ok(Some((
+        chosen_cfg,
+        Selection {
+            folds,
+            decimation: step,
+            held_out_frames: held_out,
+            candidates,
+            chosen,
+            reason,
+            seconds: t.elapsed().as_secs_f64(),
+        },
+    )))
+}
+
+/// The candidate with the lowest held-out error, unless [`DEFAULT`] is within
+/// [`MARGIN`] of it.
+pub fn choose(candidates: &[CandidateScore]) -> (String, String) {
+    let finite = candidates.iter().filter(|c| c.held_out_rmse.is_finite());
+    let Some(best) = finite.min_by(|a, b| a.held_out_rmse.total_cmp(&b.held_out_rmse)) else {
+        return (
+            DEFAULT.to_string(),
+            "no candidate could be scored".to_string(),
+        );
+    };
+    let default = candidates.iter().find(|c| c.name == DEFAULT);
+    match default {
+        Some(d) if d.name == best.name => (
+            DEFAULT.to_string(),
+            "the configured settings predict the held-out frames best".to_string(),
+        ),
+        Some(d) if best.held_out_rmse > (1.0 - MARGIN) * d.held_out_rmse => (
+            DEFAULT.to_string(),
+            format!(
+                "{} predicts the held-out frames only {:.1}% better than the configured settings (needs {:.0}%)",
+                best.name,
+                100.0 * (1.0 - best.held_out_rmse / d.held_out_rmse),
+                100.0 * MARGIN
+            ),
+        ),
+        Some(d) => (
+            best.name.clone(),
+            format!(
+                "{} predicts the held-out frames {:.1}% better than the configured settings",
+                best.name,
+                100.0 * (1.0 - best.held_out_rmse / d.held_out_rmse)
+            ),
+        ),
+        None => (
+            best.name.clone(),
+            format!("{} predicts the held-out frames best", best.name),
+        ),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn folds_cover_every_frame_once_in_two_stretches() {
+        let m = fold_masks(30, 3);
+        for f in 0..30 {
+            assert_eq!(m.iter().filter(|fold| fold[f]).count(), 1, "frame {f}");
+        }
+        // Fold 0 holds frames 0-4 and 15-19.
+        let held: Vec<usize> = (0..30).filter(|&f| m[0][f]).collect();
+        assert_eq!(held, vec![0, 1, 2, 3, 4, 15, 16, 17, 18, 19]);
+    }
+
+    fn score(name: &str, rmse: f64) -> CandidateScore {
+        CandidateScore {
+            name: name.into(),
+            settings: String::new(),
+            held_out_rmse: rmse,
+            held_out_rmse_per_fold: vec![rmse],
+            training_rmse: rmse,
+        }
+    }
+
+    #[test]
+    fn default_wins_unless_another_predicts_clearly_better() {
+        let c = [score("diffuse-only", 0.0996), score(DEFAULT, 0.1)];
+        assert_eq!(choose(&c).0, DEFAULT);
+        let c = [score("diffuse-only", 0.09), score(DEFAULT, 0.1)];
+        let (name, why) = choose(&c);
+        assert_eq!(name, "diffuse-only");
+        assert!(why.contains("10.0% better"), "{why}");
+        let c = [score("diffuse-only", f64::NAN), score(DEFAULT, 0.1)];
+        assert_eq!(choose(&c).0, DEFAULT);
+    }
+}
