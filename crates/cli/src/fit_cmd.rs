@@ -141,11 +141,11 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
         say!("settings: {} ({})", sel.chosen, sel.reason);
         if !sel.candidates.is_empty() {
             say!(
-                "  held-out RMS per candidate ({} folds): {}",
+                "  held-out RMS error (sRGB values) per candidate, {} folds: {}",
                 sel.folds,
                 sel.candidates
                     .iter()
-                    .map(|c| format!("{} {:.4}", c.name, c.held_out_rmse))
+                    .map(|c| format!("{} {:.4}", c.name, c.held_out_srgb_rmse))
                     .collect::<Vec<_>>()
                     .join(", ")
             );

@@ -551,7 +551,7 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
             "selection",
             "How the settings were chosen",
             &escape(&format!(
-                "Each setting was fitted {folds} times, each time without one stretch of the video, and asked to predict the frames it had not seen (linear RMS error). The training error always prefers more detail; the held-out error says which setting predicts new views. Least detailed first."
+                "Each setting was fitted {folds} times, each time without one stretch of the video, and asked to predict the frames it had not seen (RMS error of sRGB-encoded values; linear radiance in brackets). The training error always prefers more detail; the held-out error says which setting predicts new views. Least detailed first."
             )),
         );
         let rows: Vec<(String, String)> = c
@@ -560,8 +560,10 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
                 (
                     c["name"].as_str().unwrap_or("?").to_string(),
                     format!(
-                        "held-out {}, training {}: {}",
+                        "held-out {} ({}), training {} ({}): {}",
+                        num(&c["held_out_srgb_rmse"], 4),
                         num(&c["held_out_rmse"], 4),
+                        num(&c["training_srgb_rmse"], 4),
                         num(&c["training_rmse"], 4),
                         c["settings"].as_str().unwrap_or("")
                     ),

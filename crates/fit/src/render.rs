@@ -44,6 +44,77 @@ fn predict(
     ]
 }
 
+/// Summed squared re-rendering errors of a set of observations (held-out frames), in
+/// linear radiance and in sRGB-encoded values (highlights weigh less), with clipped
+/// channels as censored values in both.
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct SquaredErrors {
+    /// Sum over observations and channels, linear radiance.
+    pub linear: f64,
+    /// The same of sRGB-encoded values (the curve continued above 1).
+    pub srgb: f64,
+    /// Observations (each three channels).
+    pub observations: usize,
+}
+
+impl SquaredErrors {
+    /// Root mean square error in linear radiance.
+    pub fn linear_rmse(&self) -> f64 {
+        (self.linear / (3 * self.observations.max(1)) as f64).sqrt()
+    }
+
+    /// Root mean square error of sRGB-encoded values.
+    pub fn srgb_rmse(&self) -> f64 {
+        (self.srgb / (3 * self.observations.max(1)) as f64).sqrt()
+    }
+}
+
+impl std::ops::Add for SquaredErrors {
+    type Output = Self;
+
+    /// Both sums of two sets.
+    fn add(self, o: Self) -> Self {
+        Self {
+            linear: self.linear + o.linear,
+            srgb: self.srgb + o.srgb,
+            observations: self.observations + o.observations,
+        }
+    }
+}
+
+/// [`SquaredErrors`] of `params` re-rendered against every observation of `obs`.
+pub fn squared_errors(
+    obs: &Observations,
+    params: &[BrdfParams],
+    model: &dyn BrdfModel,
+    intensity: [f64; 3],
+) -> SquaredErrors {
+    use svbrdf_core::color::linear_to_srgb;
+    (0..obs.pixels())
+        .into_par_iter()
+        .with_min_len(256)
+        .map(|px| {
+            let mut e = SquaredErrors::default();
+            if obs.count(px) == 0 {
+                return e;
+            }
+            let prep = Prepared::new(params[px]);
+            for o in obs.range(px) {
+                let v = predict(obs, model, &prep, intensity, px, o);
+                let c = obs.color(o);
+                let cl = obs.clipped(o);
+                for k in 0..3 {
+                    e.linear += residual(v[k], c[k], cl[k]).powi(2);
+                    let s = linear_to_srgb(v[k].max(0.0)) - linear_to_srgb(c[k].max(0.0));
+                    e.srgb += if cl[k] { s.min(0.0) } else { s }.powi(2);
+                }
+                e.observations += 1;
+            }
+            e
+        })
+        .reduce(SquaredErrors::default, |a, b| a + b)
+}
+
 /// Re-render every observation once and report the error both ways: RMS per pixel
 /// over its observations (linear radiance; 0 where unobserved) and per input frame.
 pub fn rerender_check(

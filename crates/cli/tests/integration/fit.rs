@@ -35,6 +35,27 @@ fn fit_writes_complete_self_describing_maps() {
         serde_json::from_str(&std::fs::read_to_string(out.join("fit.json")).unwrap()).unwrap();
     assert_eq!(m["format"], "svbrdf-fit");
     assert_eq!(m["model"], "ward");
+    // The settings were chosen on held-out frames: every candidate scored, the
+    // Lambertian one far worse on this glossy material, and the choice printed.
+    let sel = &m["summary"]["selection"];
+    let cands = sel["candidates"].as_array().unwrap();
+    assert_eq!(cands.len(), 5, "{sel}");
+    let err = |name: &str| {
+        cands.iter().find(|c| c["name"] == name).unwrap()["held_out_srgb_rmse"]
+            .as_f64()
+            .unwrap()
+    };
+    for c in cands {
+        let (h, t) = (
+            c["held_out_srgb_rmse"].as_f64().unwrap(),
+            c["training_srgb_rmse"].as_f64().unwrap(),
+        );
+        assert!(h.is_finite() && t.is_finite() && h > 0.0, "{c}");
+    }
+    assert!(err("diffuse-only") > 1.5 * err("default"), "{sel}");
+    assert_ne!(sel["chosen"], "diffuse-only", "{sel}");
+    assert_eq!(sel["held_out_frames"].as_array().unwrap().len(), 3);
+    assert!(text.contains("settings: "), "{text}");
     let files = m["maps"].as_array().unwrap();
     for name in [
         "diffuse",
