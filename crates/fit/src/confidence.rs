@@ -20,9 +20,10 @@
 //!   components (the covariance's smaller eigenvalue), full at
 //!   [`NORMAL_FULL_SPREAD`]; 0 below [`MIN_VIEWS`] frames.
 //!
-//! The specular lobe is never fitted per pixel (the refinement moves the diffuse
-//! albedo and the normal only), so a pixel whose highlight was never seen carries its
-//! cluster's lobe; the confidence says so.
+//! The refinement moves the diffuse albedo and the normal per pixel; the specular lobe
+//! is its cluster's, except (with `refine_specular`) where the peak was seen
+//! unclipped ([`peak_seen`]), so a pixel whose highlight was never seen always carries
+//! its cluster's lobe; the confidence says so.
 
 use rayon::prelude::*;
 use svbrdf_core::brdf::{BrdfParams, ShadingFrame};
@@ -93,6 +94,12 @@ pub fn cluster_specular(
             (n > 0).then(|| c.map(|v| v as f64 / n as f64))
         })
         .collect()
+}
+
+/// Whether at least [`PEAK_VIEWS`] unclipped observations of pixel `p` lie within one
+/// lobe width of `params`' mirror direction (specular confidence [`SPECULAR_PEAK`]).
+pub fn peak_seen(obs: &Observations, p: usize, params: &BrdfParams) -> bool {
+    pixel_confidence(obs, p, params)[1] >= SPECULAR_PEAK
 }
 
 /// Confidences of one pixel.

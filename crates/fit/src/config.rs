@@ -96,10 +96,12 @@ pub struct FitConfig {
     /// region that keeps a pixel's normal near its cluster's. Without it a few pixels
     /// with a sharp specular lobe tilt to the bound and light up under oblique light.
     pub refine_max_normal_change_deg: f64,
-    /// Also refine the specular albedo per pixel (same prior). Measured: slightly better
-    /// diffuse, normal and re-rendering error on every tiny material, but on the
-    /// paper-resolution patchwork a few pixels' specular spikes raise the held-out
-    /// relighting error at full resolution (111% -> 134% mean); off by default.
+    /// After the lobe refits, give each pixel whose highlight peak was seen unclipped
+    /// (at least two observations within one lobe width of its mirror direction) its
+    /// own lobe: specular albedo and roughness refined with the diffuse albedo and
+    /// normal, pulled towards the cluster's by the same prior. Elsewhere the cluster's
+    /// lobe stays: nothing measured it. Off by default; the held-out validation
+    /// (`select_folds`) turns it on where it predicts better.
     pub refine_specular: bool,
     /// Robust per-pixel refinement: Cauchy weights with this scale, in units of the
     /// pixel's robust residual spread at its cluster's solution (0: plain least squares).

@@ -335,6 +335,10 @@ pub struct FitSummary {
     /// Clusters whose maps use a refitted lobe.
     #[serde(default)]
     pub refitted_clusters: usize,
+    /// Pixels with a lobe of their own (`refine_specular`: where the highlight's peak
+    /// was seen unclipped); the others carry their cluster's.
+    #[serde(default)]
+    pub pixel_lobes: usize,
     /// RMS error of the cluster solutions (before refinement, linear), over the
     /// observations the split decisions use: at most `max_split_observations` per pixel.
     pub rmse_clusters: f64,
@@ -474,12 +478,13 @@ fn refine(
     covered: &[bool],
     anchor: impl Fn(usize) -> [f64; 2] + Sync,
     iterations: usize,
+    freedom: Freedom,
 ) {
     let obs = ctx.obs;
     let global = ctx.bounds();
     let delta = ctx.cfg.refine_max_normal_change_deg.to_radians();
     // The batch path refines diffuse albedo and normal only.
-    let ward_fast = ctx.model.kind() == ModelKind::Ward && !ctx.cfg.refine_specular;
+    let ward_fast = ctx.model.kind() == ModelKind::Ward && freedom == Freedom::DIFFUSE_AND_NORMAL;
     let prior = ctx.cfg.refine_prior;
     let settings = fast::RefineSettings {
         prior,
@@ -522,11 +527,6 @@ fn refine(
                     intensity: ctx.intensity,
                     bounds,
                     tolerance: ctx.cfg.tolerance,
-                };
-                let freedom = if ctx.cfg.refine_specular {
-                    Freedom::ALBEDOS_AND_NORMAL
-                } else {
-                    Freedom::DIFFUSE_AND_NORMAL
                 };
                 prob.solve_near(p, &freedom, prior, iterations).params
             };
@@ -666,6 +666,7 @@ pub(crate) fn fit_once(
 
     let t = Instant::now();
     let mut refits = 0;
+    let mut pixel_lobes = 0;
     let mut lobes: Vec<Option<BrdfParams>> = vec![None; leaves.len()];
     if cfg.refine {
         progress.stage("per-pixel refinement", 1);
@@ -682,7 +683,8 @@ pub(crate) fn fit_once(
         // starts from a sharper lobe, which is worth more than further iterations
         // against the first one.
         let iterations = cfg.refine_iterations.div_ceil(refits.max(1));
-        refine(&ctx, &mut params, &covered, anchor, iterations);
+        let diffuse = Freedom::DIFFUSE_AND_NORMAL;
+        refine(&ctx, &mut params, &covered, anchor, iterations, diffuse);
         progress.finish();
         timings.push((
             "per-pixel refinement".to_string(),
@@ -700,7 +702,7 @@ pub(crate) fn fit_once(
                     .zip(&cluster)
                     .map(|(&c, &l)| c && (last || !cfg.refine_moved_only || moved[l as usize]))
                     .collect();
-                refine(&ctx, &mut params, &again, anchor, iterations);
+                refine(&ctx, &mut params, &again, anchor, iterations, diffuse);
                 progress.finish();
                 timings.push((
                     "per-pixel refinement".to_string(),
@@ -731,6 +733,27 @@ pub(crate) fn fit_once(
             }
             progress.finish();
             timings.push(("lobe refit".to_string(), t.elapsed().as_secs_f64()));
+        }
+        if cfg.refine_specular && !cfg.diffuse_only {
+            // Where the highlight's peak was seen unclipped, the pixel's own lobe:
+            // specular albedo and roughness too, pulled towards its cluster's.
+            let t = Instant::now();
+            progress.stage("per-pixel specular", 1);
+            let peak: Vec<bool> = (0..npx)
+                .into_par_iter()
+                .map(|p| covered[p] && confidence::peak_seen(obs, p, &params[p]))
+                .collect();
+            pixel_lobes = peak.iter().filter(|&&b| b).count();
+            refine(
+                &ctx,
+                &mut params,
+                &peak,
+                anchor,
+                cfg.refine_iterations,
+                Freedom::FULL,
+            );
+            progress.finish();
+            timings.push(("per-pixel specular".to_string(), t.elapsed().as_secs_f64()));
         }
     }
 
@@ -800,6 +823,7 @@ pub(crate) fn fit_once(
         refined: cfg.refine,
         lobe_refits: refits,
         refitted_clusters: lobes.iter().filter(|l| l.is_some()).count(),
+        pixel_lobes,
         rmse_clusters,
         rmse_final,
         frames,
@@ -1001,6 +1025,64 @@ mod tests {
         let (maps, _) = fit(&obs, &cap, &cfg, &NoProgress).unwrap();
         let ratio = maps.params[px].rho_d[0] / maps.params[px + 1].rho_d[0];
         assert!((ratio - 0.8).abs() < 0.05, "ratio {ratio}");
+    }
+
+    #[test]
+    fn pixels_whose_peak_was_seen_get_their_own_lobe_with_refine_specular() {
+        let (mut obs, cap, truth) = two_materials();
+        // A 2 x 2 patch of the shiny half reflects 40% more specular light: too small
+        // to be its own cluster, so only a per-pixel lobe can follow it. It lies where
+        // the camera above the centre sees its highlight (x 0.7, y -0.15 cm).
+        let patch: Vec<usize> = [(26, 21), (27, 21), (26, 22), (27, 22)]
+            .iter()
+            .map(|(x, y)| y * 40 + x)
+            .collect();
+        let brighter = BrdfParams {
+            rho_s: [0.42; 3],
+            ..truth[1]
+        };
+        for &px in &patch {
+            let prep = Prepared::new(brighter);
+            for o in obs.range(px) {
+                let v = Ward.radiance(&prep, &obs.light_view(px, o), 100.0);
+                if obs.clipped(o).iter().all(|c| !c) {
+                    obs.rgb[o] = v.map(|x| (x * observations::RGB_SCALE).round() as u16);
+                }
+            }
+        }
+        let base = FitConfig {
+            select_folds: 0,
+            ..FitConfig::default()
+        };
+        let (plain, plain_summary) = fit(&obs, &cap, &base, &NoProgress).unwrap();
+        let cfg = FitConfig {
+            refine_specular: true,
+            ..base
+        };
+        let (own, summary) = fit(&obs, &cap, &cfg, &NoProgress).unwrap();
+        assert_eq!(plain_summary.pixel_lobes, 0);
+        assert!(summary.pixel_lobes > 0);
+        let seen: Vec<usize> = patch
+            .iter()
+            .copied()
+            .filter(|&p| confidence::peak_seen(&obs, p, &own.params[p]))
+            .collect();
+        assert!(!seen.is_empty(), "no patch pixel saw its peak");
+        for &px in &seen {
+            let (a, b) = (plain.params[px].rho_s[1], own.params[px].rho_s[1]);
+            eprintln!("pixel {px}: cluster lobe {a:.3}, own {b:.3}");
+            assert!(
+                (b - 0.42).abs() < 0.5 * (a - 0.42).abs(),
+                "pixel {px}: cluster lobe {a}, own lobe {b}, truth 0.42"
+            );
+        }
+        // A pixel far from the patch whose peak was never seen keeps its cluster's lobe.
+        let unseen = (0..obs.pixels())
+            .find(|&p| obs.count(p) > 0 && !confidence::peak_seen(&obs, p, &own.params[p]));
+        if let Some(p) = unseen {
+            assert_eq!(own.params[p].rho_s, plain.params[p].rho_s, "pixel {p}");
+        }
+        assert!(own.params.iter().all(BrdfParams::is_physical));
     }
 
     #[test]

@@ -81,7 +81,7 @@ pub const CANDIDATES: [Candidate; 5] = [
     },
     Candidate {
         name: "pixel-specular",
-        settings: "each pixel also refines its own specular albedo (refine_specular)",
+        settings: "pixels whose highlight peak was seen unclipped get their own specular albedo and roughness (refine_specular)",
         apply: |c| c.refine_specular = true,
     },
 ];
