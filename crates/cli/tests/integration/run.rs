@@ -210,6 +210,20 @@ fn report_loads_in_chromium_with_every_image() {
     let html = std::fs::read_to_string(&report).unwrap();
     // Self-contained: no external scripts, styles or images.
     assert!(!html.contains("src=\"http") && !html.contains("href=\"http"));
+    // How the fit's settings were chosen, with every candidate's held-out error.
+    assert!(
+        html.contains("<section id=\"selection\""),
+        "no selection section"
+    );
+    for name in [
+        "diffuse-only",
+        "fewer-clusters",
+        "strong-prior",
+        "default",
+        "pixel-specular",
+    ] {
+        assert!(html.contains(&format!("<th>{name}</th>")), "{name} missing");
+    }
     let Some(dom) = crate::util::chromium_dom(
         &format!("file://{}", report.display()),
         5000,
