@@ -886,6 +886,16 @@ fn config_cases(c: &mut Cases) {
             r#"{"min_observations": 0}"#,
             &["minimum observations 0"],
         ),
+        (
+            "one validation fold",
+            r#"{"select_folds": 1}"#,
+            &["validation folds 1", "0 (off) or 2-8"],
+        ),
+        (
+            "tiny validation grid",
+            r#"{"select_pixels": 10}"#,
+            &["validation pixels 10"],
+        ),
     ];
     for (name, text, needles) in bad {
         c.fit_config(name, text, reject(needles));
