@@ -52,10 +52,12 @@ pub const DEFAULT: &str = "default";
 /// Another candidate must predict the held-out frames at least this much better
 /// (relative RMS) than [`DEFAULT`] to replace it: the defaults are measured on many
 /// captures, one validation on one capture is noisier. Measured on the simulator
-/// (`tiny`, 3 materials, 2 seeds, Ward- and GGX-rendered): the settings other than the
-/// Lambertian one differ by 1-3% on most captures, and such small differences did not
-/// follow the error under new lights.
-pub const MARGIN: f64 = 0.03;
+/// (`tiny` and `hard-small`, 3 materials each, 2 seeds, Ward- and GGX-rendered: 23
+/// captures): at 3% seven captures switched, three for the better (diffuse error up
+/// to 16% lower), three for the worse (up to 22% higher); the two that predicted more
+/// than 5% better were both better under the truth. The margin was set on those same
+/// captures, so it is a choice, not a validated constant.
+pub const MARGIN: f64 = 0.05;
 
 /// The settings compared, from least to most detailed.
 pub const CANDIDATES: [Candidate; 5] = [
@@ -370,7 +372,7 @@ mod tests {
 
     #[test]
     fn default_wins_unless_another_predicts_clearly_better() {
-        let c = [score("diffuse-only", 0.0975), score(DEFAULT, 0.1)];
+        let c = [score("diffuse-only", 0.096), score(DEFAULT, 0.1)];
         assert_eq!(choose(&c).0, DEFAULT);
         let c = [score("diffuse-only", 0.09), score(DEFAULT, 0.1)];
         let (name, why) = choose(&c);
