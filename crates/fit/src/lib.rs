@@ -1052,6 +1052,7 @@ mod tests {
         }
         let base = FitConfig {
             select_folds: 0,
+            refine_specular: false,
             ..FitConfig::default()
         };
         let (plain, plain_summary) = fit(&obs, &cap, &base, &NoProgress).unwrap();

@@ -2,7 +2,7 @@
 //!
 //! The fit's settings trade detail against noise: whether there is a specular lobe at
 //! all, how readily clusters split, how hard the per-pixel refinement is pulled towards
-//! its cluster, whether each pixel may have its own specular albedo. The training
+//! its cluster, whether a pixel whose highlight was seen may have its own lobe. The training
 //! residual always prefers the most detailed setting; what users render is the material
 //! under lights the video never showed. So before the fit, the capture's frames are cut
 //! into `2 k` contiguous stretches and fold `i` holds out stretches `i` and `i + k`
@@ -77,14 +77,14 @@ pub const CANDIDATES: [Candidate; 5] = [
         apply: |c| c.refine_prior *= 8.0,
     },
     Candidate {
+        name: "cluster-lobes",
+        settings: "every pixel keeps its cluster's specular lobe (refine_specular off)",
+        apply: |c| c.refine_specular = false,
+    },
+    Candidate {
         name: DEFAULT,
         settings: "the configured settings",
         apply: |_| {},
-    },
-    Candidate {
-        name: "pixel-specular",
-        settings: "pixels whose highlight peak was seen unclipped get their own specular albedo and roughness (refine_specular)",
-        apply: |c| c.refine_specular = true,
     },
 ];
 

@@ -219,8 +219,8 @@ fn report_loads_in_chromium_with_every_image() {
         "diffuse-only",
         "fewer-clusters",
         "strong-prior",
+        "cluster-lobes",
         "default",
-        "pixel-specular",
     ] {
         assert!(html.contains(&format!("<th>{name}</th>")), "{name} missing");
     }
