@@ -90,7 +90,10 @@ pub fn squared_errors(
     intensity: [f64; 3],
 ) -> SquaredErrors {
     use svbrdf_core::color::linear_to_srgb;
-    (0..obs.pixels())
+    // Per pixel in parallel, summed in pixel order: a parallel reduction would add in
+    // an order that depends on thread scheduling, and identical inputs must give
+    // identical bytes.
+    let per_pixel: Vec<SquaredErrors> = (0..obs.pixels())
         .into_par_iter()
         .with_min_len(256)
         .map(|px| {
@@ -112,7 +115,10 @@ pub fn squared_errors(
             }
             e
         })
-        .reduce(SquaredErrors::default, |a, b| a + b)
+        .collect();
+    per_pixel
+        .into_iter()
+        .fold(SquaredErrors::default(), |a, b| a + b)
 }
 
 /// Re-render every observation once and report the error both ways: RMS per pixel
