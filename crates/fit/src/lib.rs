@@ -546,10 +546,7 @@ pub fn fit(
     progress: &dyn Progress,
 ) -> Result<(FittedMaps, FitSummary), FitError> {
     cfg.validate()?;
-    progress.stage("choosing settings on held-out frames", 1);
-    let selection = select::select(obs, capture, cfg)?;
-    progress.finish();
-    let Some((chosen, record)) = selection else {
+    let Some((chosen, record)) = select::select(obs, capture, cfg, progress)? else {
         return fit_once(obs, capture, cfg, progress);
     };
     let (maps, mut summary) = fit_once(obs, capture, &chosen, progress)?;

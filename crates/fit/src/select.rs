@@ -21,7 +21,7 @@ use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
 use svbrdf_core::capture::RegisteredCapture;
-use svbrdf_core::progress::NoProgress;
+use svbrdf_core::progress::{NoProgress, Progress};
 
 use crate::config::FitConfig;
 use crate::observations::Observations;
@@ -159,11 +159,25 @@ pub fn select(
     obs: &Observations,
     capture: &RegisteredCapture,
     cfg: &FitConfig,
+    progress: &dyn Progress,
 ) -> Result<Option<(FitConfig, Selection)>, FitError> {
     let folds = cfg.select_folds;
     if folds == 0 || cfg.diffuse_only {
         return Ok(None);
     }
+    progress.stage("choosing settings on held-out frames", 1);
+    let result = validate(obs, capture, cfg, folds);
+    progress.finish();
+    result.map(Some)
+}
+
+/// [`select`] once validation is on.
+fn validate(
+    obs: &Observations,
+    capture: &RegisteredCapture,
+    cfg: &FitConfig,
+    folds: usize,
+) -> Result<(FitConfig, Selection), FitError> {
     let t = Instant::now();
     // Every candidate's fit on a grid of at most `select_pixels` pixels.
     let step = ((obs.pixels() as f64 / cfg.select_pixels as f64)
@@ -171,7 +185,7 @@ pub fn select(
         .ceil() as usize)
         .max(1);
     let skipped = |reason: String| {
-        Some((
+        (
             cfg.clone(),
             Selection {
                 folds,
@@ -182,7 +196,7 @@ pub fn select(
                 reason,
                 seconds: t.elapsed().as_secs_f64(),
             },
-        ))
+        )
     };
     if obs.frames.len() < 2 * folds {
         return Ok(skipped(format!(
@@ -283,7 +297,7 @@ pub fn select(
         .iter()
         .find(|c| c.name == chosen)
         .map_or_else(|| cfg.clone(), |c| c.config(cfg));
-    Ok(Some((
+    Ok((
         chosen_cfg,
         Selection {
             folds,
@@ -294,7 +308,7 @@ pub fn select(
             reason,
             seconds: t.elapsed().as_secs_f64(),
         },
-    )))
+    ))
 }
 
 /// The candidate with the lowest held-out error of sRGB-encoded values, unless

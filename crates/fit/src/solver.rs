@@ -62,11 +62,6 @@ impl Freedom {
         ],
         isotropic: false,
     };
-    /// Per-pixel refinement: diffuse and specular albedo and normal.
-    pub const ALBEDOS_AND_NORMAL: Self = Self {
-        free: [true, true, true, true, true, true, false, false, true, true],
-        isotropic: false,
-    };
 }
 
 /// Bounds of eq. (11).
