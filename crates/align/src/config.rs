@@ -79,6 +79,14 @@ pub struct AlignConfig {
     /// (4: measured on the paper preset, 95th percentile 0.57 -> 0.52 px against 1; 16
     /// is worse).
     pub overlap_weight: f64,
+    /// Largest noise gain a sub-frame's map may have and still be used (see
+    /// `support`): the standard deviation of its corners' plane positions in units of
+    /// one constraint's noise. Sub-frames above it are extrapolations, not
+    /// measurements, and are left out of the registered capture. 4: on simulated
+    /// captures with texture everywhere every sub-frame but a handful stays below 4 and
+    /// those above were 0.3-1.1 mm off; on brushed metal, 1-7 cm. Unitless, > 0.
+    #[serde(default = "default_max_noise_gain")]
+    pub max_noise_gain: f64,
     /// Gauss-Newton iterations of the global solve.
     pub iterations: usize,
     /// At most this many fine pairs per frame (its strongest coarse connections; the
@@ -136,6 +144,7 @@ impl Default for AlignConfig {
             self_check: crate::selfcheck::SelfCheckConfig::default(),
             reference_weight: 1.0,
             overlap_weight: 4.0,
+            max_noise_gain: default_max_noise_gain(),
             iterations: 8,
             max_pairs_per_frame: 8,
             all_pairs: false,
@@ -150,6 +159,10 @@ impl Default for AlignConfig {
             cross_pairs_per_frame: 3,
         }
     }
+}
+
+fn default_max_noise_gain() -> f64 {
+    4.0
 }
 
 impl AlignConfig {
@@ -233,6 +246,13 @@ impl AlignConfig {
                 "overlap weight",
                 self.overlap_weight,
                 "a finite weight >= 0",
+            ));
+        }
+        if !(self.max_noise_gain > 0.0 && self.max_noise_gain.is_finite()) {
+            return Err(AlignError::invalid(
+                "largest sub-frame noise gain",
+                self.max_noise_gain,
+                "a finite number > 0 (default 4; larger keeps more extrapolated sub-frames)",
             ));
         }
         if self.sharpest_within > 30 {

@@ -31,6 +31,7 @@ pub mod reference;
 pub mod selfcheck;
 pub mod solve;
 mod subframes;
+pub mod support;
 pub mod sync;
 
 use std::path::{Path, PathBuf};
@@ -109,6 +110,10 @@ pub struct DropCounts {
     /// self-check after the solve).
     #[serde(default)]
     pub inconsistent: usize,
+    /// Registered, but fewer than `support::MIN_SUPPORTED_SHARE` of its sub-frames were
+    /// fixed by correspondences of their own.
+    #[serde(default)]
+    pub unsupported: usize,
     /// Kept.
     pub kept: usize,
 }
@@ -178,6 +183,9 @@ pub struct AlignSummary {
     /// overlapping frames or assumed fixed.
     #[serde(default)]
     pub exposure: Option<exposure::ExposureCurve>,
+    /// Sub-frames left out because no correspondence of their own fixed their maps.
+    #[serde(default)]
+    pub support: support::SupportSummary,
 }
 
 /// What a video's stream says about its colours and what decoding did with it.
@@ -457,8 +465,17 @@ pub fn align(
     };
     let (covered, missed) = coverage(&result, region)?;
     if covered < MIN_COVERAGE {
+        let sup = &result.support;
+        let why = if sup.removed > 0 {
+            format!(
+                " ({} of {} sub-frames were left out because no match, marker or reference-photo match of their own fixed where they lie: texture that matches only in places, such as brushed metal, or too few frames)",
+                sup.removed, sup.subframes
+            )
+        } else {
+            String::new()
+        };
         return Err(AlignError::Video(format!(
-            "only {:.0}% of the region is seen by at least {COVERAGE_VIEWS} registered frames (expected at least {:.0}%); thin: {missed}. Film again sweeping over that part too, or pass --region to capture less",
+            "only {:.0}% of the region is seen by at least {COVERAGE_VIEWS} registered frames (expected at least {:.0}%){why}; thin: {missed}. Film again sweeping over that part too, more slowly, or pass --region to capture less",
             100.0 * covered,
             100.0 * MIN_COVERAGE
         )));

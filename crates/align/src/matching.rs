@@ -79,6 +79,8 @@ pub struct Registration {
     pub per_frame_anchors: Vec<(u64, usize, usize)>,
     /// Solve statistics.
     pub solve: SolveReport,
+    /// Sub-frames left out as extrapolated, frames dropped for it.
+    pub support: crate::support::SupportSummary,
 }
 
 /// The frames the blur metric keeps (eq. 1, per stream) and how many it drops.
@@ -546,10 +548,30 @@ pub fn register(
     let huber = 2.0 * cm_per_px;
     progress.stage("global solve", 1);
     let (solved, report) = solve(&init_blocks, &cons, huber, cfg.iterations)?;
+    let ranges: Vec<std::ops::Range<usize>> = registered
+        .iter()
+        .map(|&i| slot[&i]..slot[&i] + grids[i].len())
+        .collect();
+    let owner: Vec<usize> = registered
+        .iter()
+        .flat_map(|&i| std::iter::repeat_n(i, grids[i].len()))
+        .collect();
+    let gains = crate::support::noise_gains(&solved, &cons, &ranges, |b| {
+        let i = owner[b];
+        let [x0, y0, x1, y1] = grids[i].rect(b - slot[&i]);
+        [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]
+            .into_iter()
+            .map(|(x, y)| norm(i, Vec2::new(x, y)))
+            .collect()
+    });
     progress.finish();
     lap("global solve");
 
     // Back to pixel coordinates, poses from the centre sub-frame, region check.
+    let mut support = crate::support::SupportSummary {
+        max_noise_gain: cfg.max_noise_gain,
+        ..Default::default()
+    };
     let region = rf.marker_region().expanded(cfg.camera.marker_size_cm);
     // Registered frames with a plausible pose: (frame, sub-frame maps, pose).
     let mut posed = Vec::new();
@@ -570,31 +592,71 @@ pub fn register(
                 (grid.rect(c), h / h[(2, 2)])
             })
             .collect();
+        // Sub-frames whose maps no correspondence of their own fixes are left out;
+        // a frame left with too few is dropped (see `support`).
+        let supported: Vec<bool> = (0..grid.len())
+            .map(|c| gains[slot[&i] + c] <= cfg.max_noise_gain)
+            .collect();
+        let kept_cells = supported.iter().filter(|s| **s).count();
+        support.subframes += grid.len();
+        if (kept_cells as f64) < crate::support::MIN_SUPPORTED_SHARE * grid.len() as f64 {
+            support.removed += grid.len();
+            support.frames_dropped.push(frames[i].index);
+            match (second, &mut second_drops) {
+                (true, Some(d)) => d.unsupported += 1,
+                _ => drops.unsupported += 1,
+            }
+            continue;
+        }
+        if kept_cells < grid.len() {
+            support.removed += grid.len() - kept_cells;
+            support
+                .partial_frames
+                .push((frames[i].index, kept_cells, grid.len()));
+        }
         // Paper: decompose the centre sub-frame's homography. A single sub-frame spans
         // a small patch, which makes rotation and translation hard to tell apart; we
         // fit one homography to the piecewise map over the central 60% of the frame
-        // (where lens distortion is mild) and decompose that.
+        // (where lens distortion is mild) and decompose that, from the supported
+        // sub-frames only (over the whole frame where the centre has too few).
         let mut img_pts = Vec::new();
         let mut plane_pts = Vec::new();
-        for gy in 0..9 {
-            for gx in 0..9 {
-                let p = Vec2::new(
-                    (0.2 + 0.6 * f64::from(gx) / 8.0) * f64::from(width) - 0.5,
-                    (0.2 + 0.6 * f64::from(gy) / 8.0) * f64::from(height) - 0.5,
-                );
-                if let Some(q) = Homography(blocks[grid.cell(p)].1).apply(p) {
-                    img_pts.push(p);
-                    plane_pts.push(q);
+        for (lo, span) in [(0.2, 0.6), (0.05, 0.9)] {
+            img_pts.clear();
+            plane_pts.clear();
+            for gy in 0..9 {
+                for gx in 0..9 {
+                    let p = Vec2::new(
+                        (lo + span * f64::from(gx) / 8.0) * f64::from(width) - 0.5,
+                        (lo + span * f64::from(gy) / 8.0) * f64::from(height) - 0.5,
+                    );
+                    let c = grid.cell(p);
+                    if !supported[c] {
+                        continue;
+                    }
+                    if let Some(q) = Homography(blocks[c].1).apply(p) {
+                        img_pts.push(p);
+                        plane_pts.push(q);
+                    }
                 }
+            }
+            if img_pts.len() >= 24 {
+                break;
             }
         }
         let centre_fit = Homography::from_correspondences(&plane_pts, &img_pts).ok();
+        let centre_block = supported[centre_cell].then_some(blocks[centre_cell].1);
+        let blocks: Vec<([f64; 4], Mat3)> = blocks
+            .into_iter()
+            .zip(&supported)
+            .filter(|(_, s)| **s)
+            .map(|(b, _)| b)
+            .collect();
         let Some(pose) = centre_fit
             .and_then(|h| pose_from_homography(&intrinsics, &h.0))
             .or_else(|| {
-                blocks[centre_cell]
-                    .1
-                    .try_inverse()
+                centre_block
+                    .and_then(|b| b.try_inverse())
                     .and_then(|inv| pose_from_homography(&intrinsics, &inv))
             })
         else {
@@ -654,9 +716,13 @@ pub fn register(
         d.kept = out_frames.len() - drops.kept;
     }
     if drops.kept == 0 {
-        return Err(AlignError::Connect(
-            "every frame's camera pose fell outside the marker boundary".into(),
-        ));
+        return Err(AlignError::Connect(format!(
+            "no frame kept: of {} registered frames, {} were mostly extrapolated (fewer than {:.0}% of their sub-frames fixed by matches of their own) and {} had a camera pose outside the marker boundary; film with more texture or markers in view, or pass a larger max_noise_gain in the settings",
+            registered.len(),
+            drops.unsupported,
+            100.0 * crate::support::MIN_SUPPORTED_SHARE,
+            drops.outside
+        )));
     }
     Ok(Registration {
         frames: out_frames,
@@ -676,6 +742,7 @@ pub fn register(
         pieces,
         per_frame_anchors,
         solve: report,
+        support,
     })
 }
 

@@ -465,6 +465,7 @@ pub fn write(
         coverage,
         video_decoding,
         exposure: Some(exposure),
+        support: reg.support.clone(),
     };
     #[derive(serde::Serialize)]
     struct Record<'a> {

@@ -77,7 +77,7 @@ pub struct SolveReport {
     pub cheap_steps: usize,
 }
 
-fn to_params(h: &Mat3) -> [f64; 8] {
+pub(crate) fn to_params(h: &Mat3) -> [f64; 8] {
     let h = h / h[(2, 2)];
     [
         h[(0, 0)],
@@ -98,7 +98,7 @@ pub fn from_params(p: &[f64]) -> Mat3 {
 
 /// Project `p` through block `h` and return the point with its 2x8 Jacobian.
 #[inline]
-fn project(h: &[f64], p: Vec2) -> (Vec2, [[f64; 8]; 2]) {
+pub(crate) fn project(h: &[f64], p: Vec2) -> (Vec2, [[f64; 8]; 2]) {
     let n1 = h[0] * p.x + h[1] * p.y + h[2];
     let n2 = h[3] * p.x + h[4] * p.y + h[5];
     let d = h[6] * p.x + h[7] * p.y + 1.0;

@@ -422,8 +422,8 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     let f = &s.frames;
     say!("wrote {}", s.out.display());
     say!(
-        "frames: {} decoded, {} kept; dropped {} blurry, {} disconnected, {} unregistered, {} outside the markers",
-        f.decoded, f.kept, f.blurry, f.disconnected, f.unregistered, f.outside
+        "frames: {} decoded, {} kept; dropped {} blurry, {} disconnected, {} unregistered, {} mostly extrapolated, {} outside the markers, {} inconsistent",
+        f.decoded, f.kept, f.blurry, f.disconnected, f.unregistered, f.unsupported, f.outside, f.inconsistent
     );
     say!(
         "matching: {} coarse pairs tested, {} connected, {} fine pairs; {} frames see markers, {} anchored to the reference photo{}",
@@ -453,6 +453,9 @@ fn run_align(a: &AlignArgs) -> Result<()> {
             },
             v.decoder
         );
+    }
+    if let Some(line) = s.support.describe() {
+        say!("support: {line}");
     }
     if let Some(t) = &s.second {
         say!("second video: {}", t.describe());

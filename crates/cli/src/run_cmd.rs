@@ -552,8 +552,8 @@ pub fn print_run_summary(o: &RunOutcome) -> Result<()> {
     let f = &align["summary"]["frames"];
     say!("== summary");
     say!(
-        "frames: {} decoded, {} kept; dropped {} blurry, {} disconnected, {} unregistered, {} outside the markers",
-        f["decoded"], f["kept"], f["blurry"], f["disconnected"], f["unregistered"], f["outside"]
+        "frames: {} decoded, {} kept; dropped {} blurry, {} disconnected, {} unregistered, {} mostly extrapolated, {} outside the markers, {} inconsistent",
+        f["decoded"], f["kept"], f["blurry"], f["disconnected"], f["unregistered"], f["unsupported"], f["outside"], f["inconsistent"]
     );
     if let Ok(second) = serde_json::from_value::<svbrdf_align::SecondStreamSummary>(
         align["summary"]["second"].clone(),

@@ -429,6 +429,19 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
                 a["summary"]["reference_anchored"]
             ),
         ));
+        let sup = &a["summary"]["support"];
+        if sup["removed"].as_u64().unwrap_or(0) > 0 {
+            rows.push((
+                "support".into(),
+                format!(
+                    "{} of {} sub-frames left out because no match, marker or reference-photo match of their own fixed where they lie on the material (their maps would be guesses); {} frames dropped for it, {} kept in part",
+                    sup["removed"],
+                    sup["subframes"],
+                    sup["frames_dropped"].as_array().map_or(0, Vec::len),
+                    sup["partial_frames"].as_array().map_or(0, Vec::len)
+                ),
+            ));
+        }
         let pieces = a["summary"]["pieces"].as_u64().unwrap_or(1);
         if pieces > 1 {
             rows.push((
