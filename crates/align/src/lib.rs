@@ -734,6 +734,20 @@ fn check_baseline(reg: &matching::Registration, reference: &Path) -> Result<f64,
         hi - lo
     };
     let sweep = extent(&mut xy.iter().map(|p| p.0)).hypot(extent(&mut xy.iter().map(|p| p.1)));
+    let d = &reg.drops;
+    if xy.len() < 3 && d.decoded >= 3 {
+        // Not a still camera: too few frames registered to tell.
+        return Err(AlignError::Connect(format!(
+            "only {} of {} sampled frames could be registered ({} blurry, {} in pieces not tied to the plane, {} without a usable map, {} mostly extrapolated, {} outside the markers): the frames matched neither each other nor the reference photo well enough (expected most of them; low-contrast or streaky texture under a broad highlight does this). Film more slowly, with the markers in view more often, or lower frame_step in the camera description",
+            xy.len(),
+            d.decoded,
+            d.blurry,
+            d.disconnected,
+            d.unregistered,
+            d.unsupported,
+            d.outside
+        )));
+    }
     if !(sweep >= MIN_SWEEP_CM) {
         return Err(AlignError::Video(format!(
             "the camera barely moved: over its {} registered frames the flash camera's positions span {:.2} cm (expected a sweep of at least {MIN_SWEEP_CM} cm; film 15-30 s moving the phone across the whole surface, see docs/CAPTURE.md; reference photo {})",

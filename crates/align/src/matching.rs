@@ -717,7 +717,7 @@ pub fn register(
     }
     if drops.kept == 0 {
         return Err(AlignError::Connect(format!(
-            "no frame kept: of {} registered frames, {} were mostly extrapolated (fewer than {:.0}% of their sub-frames fixed by matches of their own) and {} had a camera pose outside the marker boundary; film with more texture or markers in view, or pass a larger max_noise_gain in the settings",
+            "no frame kept: of {} registered frames, {} were mostly extrapolated (fewer than {:.0}% of their sub-frames fixed by matches of their own) and {} had a camera pose outside the marker boundary; film with more texture or markers in view, or pass a larger --max-noise-gain",
             registered.len(),
             drops.unsupported,
             100.0 * crate::support::MIN_SUPPORTED_SHARE,

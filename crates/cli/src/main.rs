@@ -221,6 +221,11 @@ struct AlignArgs {
     /// to one feature match (default 4).
     #[arg(long)]
     overlap_weight: Option<f64>,
+    /// Largest noise gain a sub-frame's map may have and still be used (default 4):
+    /// larger keeps sub-frames that no correspondence of their own fixes, whose maps
+    /// are extrapolations (docs/RELIABILITY.md).
+    #[arg(long)]
+    max_noise_gain: Option<f64>,
     /// Test all frame pairs in coarse alignment (slow; for benchmarks).
     #[arg(long)]
     all_pairs: bool,
@@ -301,6 +306,9 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
     }
     if let Some(v) = a.overlap_weight {
         c.overlap_weight = v;
+    }
+    if let Some(v) = a.max_noise_gain {
+        c.max_noise_gain = v;
     }
 
     if let Some(v) = a.fine_features {
