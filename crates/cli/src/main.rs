@@ -124,6 +124,11 @@ struct SynthArgs {
     /// (10-bit HLG, BT.2020, as iPhones record by default) or hevc-pq (HDR10).
     #[arg(long, value_parser = ["h264-sdr8", "hevc-sdr10", "hevc-hlg", "hevc-pq"])]
     video_format: Option<String>,
+    /// Store the same frames in these formats too (comma-separated, as --video-format),
+    /// each as a complete capture folder `OUT.FORMAT` beside OUT: one rendering,
+    /// several encodings, for comparing formats on identical scenes.
+    #[arg(long, value_delimiter = ',', value_parser = ["h264-sdr8", "hevc-sdr10", "hevc-hlg", "hevc-pq"])]
+    also_video_format: Vec<String>,
     /// Variable frame rate: frame n is taken and stamped at n / fps + J sin(1.7 n)
     /// seconds, J this many seconds (less than 0.4 frame intervals).
     #[arg(long, value_name = "J")]
@@ -542,6 +547,13 @@ fn synth_config(a: &SynthArgs) -> Result<SynthConfig> {
     if let Some(j) = a.frame_jitter {
         c.video.frame_jitter_s = j;
     }
+    for f in &a.also_video_format {
+        c.video
+            .also_formats
+            .push(serde_json::from_value(serde_json::Value::String(
+                f.clone(),
+            ))?);
+    }
     if let Some(b) = &a.brdf {
         c.brdf = serde_json::from_value(serde_json::Value::String(b.clone()))?;
     }
@@ -647,6 +659,9 @@ fn print_summary(s: &svbrdf_synth::SynthSummary) {
         "flash video: {} frames, {} with a marker fully visible, {} motion-blurred",
         s.frames, s.frames_with_markers, s.blurred_frames
     );
+    for p in &s.also {
+        say!("the same capture in another format: {}", p.display());
+    }
     if let Some(n) = s.second_frames {
         println!("second camera: {n} frames");
     }

@@ -85,6 +85,11 @@ pub struct VideoSpec {
     /// `n / fps + frame_jitter_s * sin(1.7 n)` seconds (0: constant rate), < 0.4 / fps.
     #[serde(default)]
     pub frame_jitter_s: f64,
+    /// The same frames stored in these formats too, each as a complete capture folder
+    /// beside the output, named `<out>.<format>` (one rendering, several encodings: the
+    /// formats are compared on identical scenes and sweeps). Empty: none.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub also_formats: Vec<svbrdf_cv::encode::VideoFormat>,
 }
 
 /// A phone's auto-exposure: each frame is metered (mean linear level of what the
@@ -321,6 +326,7 @@ impl SynthConfig {
                 auto_exposure: None,
                 format: Default::default(),
                 frame_jitter_s: 0.0,
+                also_formats: Vec::new(),
             },
             sweep: SweepSpec {
                 distance_min_cm: 7.0,
@@ -592,6 +598,22 @@ impl SynthConfig {
                 format!(
                     "seconds in [0, {:.4}) (less than 0.4 frame intervals)",
                     0.4 / v.fps
+                ),
+            ));
+        }
+        if v.also_formats.contains(&v.format)
+            || (1..v.also_formats.len()).any(|k| v.also_formats[..k].contains(&v.also_formats[k]))
+        {
+            return Err(SynthError::invalid(
+                "extra video formats",
+                v.also_formats
+                    .iter()
+                    .map(|f| f.name())
+                    .collect::<Vec<_>>()
+                    .join(","),
+                format!(
+                    "formats other than the main one ({}), each once",
+                    v.format.name()
                 ),
             ));
         }

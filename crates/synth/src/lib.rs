@@ -99,6 +99,8 @@ pub struct SynthSummary {
     pub blurred_frames: u64,
     /// Frames of the second camera, if any.
     pub second_frames: Option<u64>,
+    /// The same capture stored in other formats (`VideoSpec::also_formats`).
+    pub also: Vec<std::path::PathBuf>,
 }
 
 fn cam_truth(c: &Camera) -> CameraTruth {
@@ -140,6 +142,14 @@ pub fn synthesize(
     };
     let staging = StagingDir::new(out, overwrite, &inputs)?;
     let dir = staging.path().to_path_buf();
+    // Folders of the same capture stored in other formats (refused before any work if
+    // they exist without `overwrite`).
+    let also: Vec<(VideoFormat, StagingDir)> = cfg
+        .video
+        .also_formats
+        .iter()
+        .map(|&f| Ok((f, StagingDir::new(&also_path(out, f), overwrite, &inputs)?)))
+        .collect::<Result<_, SynthError>>()?;
     let mut files = Vec::new();
     let region = Region::centred(cfg.region_cm[0], cfg.region_cm[1]);
     let dict = Dictionary::from_name(&cfg.markers.dictionary)?;
@@ -296,6 +306,19 @@ pub fn synthesize(
             v.frame_jitter_s,
         )?)
     };
+    let mut also_writers: Vec<FfmpegWriter> = also
+        .iter()
+        .map(|(f, st)| {
+            FfmpegWriter::create(
+                &st.path().join("flash.mp4"),
+                v.fps,
+                v.width,
+                v.height,
+                *f,
+                v.frame_jitter_s,
+            )
+        })
+        .collect::<Result<_, _>>()?;
     let mut flash_frames = Vec::with_capacity(n_frames as usize);
     let mut auto_exposure = AutoExposure::default();
     let wander_phase = (cfg.seed % 1000) as f64 * 0.618_034 * std::f64::consts::TAU;
@@ -354,6 +377,18 @@ pub fn synthesize(
                 i,
             ))?,
         }
+        if !also_writers.is_empty() {
+            let frame = expose_linear(
+                &lin,
+                cfg.light.shot_noise,
+                cfg.light.read_noise,
+                cfg.seed,
+                i,
+            );
+            for w in &mut also_writers {
+                w.write(&frame)?;
+            }
+        }
         flash_frames.push(FrameTruth {
             index: i,
             time_s: t,
@@ -370,6 +405,9 @@ pub fn synthesize(
         FlashWriter::OpenCv(w) => w.finish()?,
         FlashWriter::Ffmpeg(w) => w.finish()?,
     };
+    for w in also_writers {
+        w.finish()?;
+    }
     progress.finish();
     files.push("flash.mp4".into());
     let mut streams = vec![StreamTruth {
@@ -475,6 +513,13 @@ pub fn synthesize(
     capture.save(&reg_dir)?;
     files.push("registered/capture.json".into());
 
+    // The other formats: the same capture with another flash video.
+    let mut also_written = Vec::new();
+    for (f, st) in also {
+        write_also(&dir, st.path(), &truth, cfg, f)?;
+        also_written.push(st.commit()?);
+    }
+
     let summary = SynthSummary {
         out: staging.commit()?,
         files,
@@ -490,8 +535,56 @@ pub fn synthesize(
             .filter(|f| f.motion_blur)
             .count() as u64,
         second_frames: truth.streams.get(1).map(|s| s.frames.len() as u64),
+        also: also_written,
     };
     Ok(summary)
+}
+
+/// Where `out` stored in format `f` goes: `<out>.<format>` beside it.
+pub fn also_path(out: &Path, f: VideoFormat) -> std::path::PathBuf {
+    let name = out
+        .file_name()
+        .map_or_else(|| "capture".into(), |n| n.to_string_lossy().into_owned());
+    out.with_file_name(format!("{name}.{}", f.name()))
+}
+
+/// Complete the capture folder `to` (whose `flash.mp4` is written) from the finished
+/// one in `from`: the same reference photo, camera description and ground truth, the
+/// truth's configuration and registered capture stated for format `f`.
+fn write_also(
+    from: &Path,
+    to: &Path,
+    truth: &GroundTruth,
+    cfg: &SynthConfig,
+    f: VideoFormat,
+) -> Result<(), SynthError> {
+    for name in ["reference.jpg", "camera.json"] {
+        std::fs::copy(from.join(name), to.join(name))
+            .map_err(|e| CoreError::io(to.join(name), e))?;
+    }
+    for sub in ["ground_truth/maps", "ground_truth/holdout"] {
+        let (src, dst) = (from.join(sub), to.join(sub));
+        std::fs::create_dir_all(&dst).map_err(|e| CoreError::io(&dst, e))?;
+        for entry in std::fs::read_dir(&src).map_err(|e| CoreError::io(&src, e))? {
+            let entry = entry.map_err(|e| CoreError::io(&src, e))?;
+            let target = dst.join(entry.file_name());
+            // A hard link where the file system allows (the maps of the paper preset
+            // are hundreds of MB), else a copy.
+            if std::fs::hard_link(entry.path(), &target).is_err() {
+                std::fs::copy(entry.path(), &target).map_err(|e| CoreError::io(&target, e))?;
+            }
+        }
+    }
+    let mut cfg_f = cfg.clone();
+    cfg_f.video.format = f;
+    cfg_f.video.also_formats.clear();
+    let mut truth_f = truth.clone();
+    truth_f.config = cfg_f.clone();
+    write_json(&to.join("ground_truth/truth.json"), &truth_f)?;
+    let reg_dir = to.join("registered");
+    std::fs::create_dir_all(&reg_dir).map_err(|e| CoreError::io(&reg_dir, e))?;
+    registered_from_truth(&truth_f, &cfg_f).save(&reg_dir)?;
+    Ok(())
 }
 
 /// The flash video's encoder.

@@ -197,3 +197,65 @@ fn ten_bit_video_turned_by_90_or_270_degrees_comes_out_upright() {
         "90 and 270 degrees turned the same way"
     );
 }
+
+/// One rendering, several encodings (issue 20's comparison of formats on identical
+/// scenes): `--also-video-format` writes `OUT.FORMAT` folders whose ground truth and
+/// registered capture are exactly those of a capture synthesized in that format
+/// directly, and whose video is stored in that format.
+#[test]
+fn also_video_format_writes_the_same_capture_in_another_format() {
+    let dir = temp_dir().join("also");
+    let main = dir.join("cap");
+    let o = svbrdf(&[
+        "synth",
+        "--preset",
+        "tiny",
+        "--out",
+        main.to_str().unwrap(),
+        "--also-video-format",
+        "hevc-hlg",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let sibling = dir.join("cap.hevc-hlg");
+    assert!(String::from_utf8_lossy(&o.stdout).contains("cap.hevc-hlg"));
+    let direct = dir.join("direct");
+    let o = svbrdf(&[
+        "synth",
+        "--preset",
+        "tiny",
+        "--out",
+        direct.to_str().unwrap(),
+        "--video-format",
+        "hevc-hlg",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in [
+        "ground_truth/truth.json",
+        "registered/capture.json",
+        "camera.json",
+    ] {
+        assert_eq!(
+            read(&sibling.join(f)),
+            read(&direct.join(f)),
+            "{f} differs from a direct HLG synth"
+        );
+    }
+    let p = svbrdf_cv::probe::probe_video(&sibling.join("flash.mp4")).unwrap();
+    assert_eq!(p.transfer.as_deref(), Some("arib-std-b67"), "{p:?}");
+    assert_eq!(p.bit_depth, 10, "{p:?}");
+    // The main capture is the default format and records what else was written.
+    let t = read(&main.join("ground_truth/truth.json"));
+    assert_eq!(t["config"]["video"]["also_formats"][0], "hevc-hlg", "{t}");
+    // A format twice, or the main one again, is refused in one line.
+    let o = svbrdf(&[
+        "synth",
+        "--preset",
+        "tiny",
+        "--out",
+        dir.join("bad").to_str().unwrap(),
+        "--also-video-format",
+        "h264-sdr8",
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("extra video formats"), "{}", stderr(&o));
+}
