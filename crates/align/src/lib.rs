@@ -118,6 +118,23 @@ pub struct DropCounts {
     pub kept: usize,
 }
 
+impl DropCounts {
+    /// One line for people: frames decoded, kept, and dropped by each reason.
+    pub fn describe(&self) -> String {
+        format!(
+            "{} decoded, {} kept; dropped {} blurry, {} disconnected, {} unregistered, {} mostly extrapolated, {} outside the markers, {} inconsistent",
+            self.decoded,
+            self.kept,
+            self.blurry,
+            self.disconnected,
+            self.unregistered,
+            self.unsupported,
+            self.outside,
+            self.inconsistent
+        )
+    }
+}
+
 /// What [`align`] did.
 #[derive(Debug, Clone, serde::Serialize, serde::Deserialize)]
 pub struct AlignSummary {

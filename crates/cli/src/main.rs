@@ -434,10 +434,7 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     let s = svbrdf_align::align(&inputs, &cfg, &a.out, a.overwrite, &progress)?;
     let f = &s.frames;
     say!("wrote {}", s.out.display());
-    say!(
-        "frames: {} decoded, {} kept; dropped {} blurry, {} disconnected, {} unregistered, {} mostly extrapolated, {} outside the markers, {} inconsistent",
-        f.decoded, f.kept, f.blurry, f.disconnected, f.unregistered, f.unsupported, f.outside, f.inconsistent
-    );
+    say!("frames: {}", f.describe());
     say!(
         "matching: {} coarse pairs tested, {} connected, {} fine pairs; {} frames see markers, {} anchored to the reference photo{}",
         s.coarse_pairs_tested, s.connected_pairs, s.fine_pairs, s.frames_with_markers, s.reference_anchored,
@@ -660,7 +657,7 @@ fn print_summary(s: &svbrdf_synth::SynthSummary) {
         s.frames, s.frames_with_markers, s.blurred_frames
     );
     for p in &s.also {
-        say!("the same capture in another format: {}", p.display());
+        println!("the same capture in another format: {}", p.display());
     }
     if let Some(n) = s.second_frames {
         println!("second camera: {n} frames");

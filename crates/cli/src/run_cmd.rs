@@ -550,12 +550,12 @@ pub fn print_run_summary(o: &RunOutcome) -> Result<()> {
     let align: Value = svbrdf_core::fsutil::read_json(&o.out.join(ALIGNED).join("align.json"))
         .unwrap_or(Value::Null);
     let fit: Value = svbrdf_core::fsutil::read_json(&o.out.join(MAPS).join("fit.json"))?;
-    let f = &align["summary"]["frames"];
     say!("== summary");
-    say!(
-        "frames: {} decoded, {} kept; dropped {} blurry, {} disconnected, {} unregistered, {} mostly extrapolated, {} outside the markers, {} inconsistent",
-        f["decoded"], f["kept"], f["blurry"], f["disconnected"], f["unregistered"], f["unsupported"], f["outside"], f["inconsistent"]
-    );
+    if let Ok(f) =
+        serde_json::from_value::<svbrdf_align::DropCounts>(align["summary"]["frames"].clone())
+    {
+        say!("frames: {}", f.describe());
+    }
     if let Ok(second) = serde_json::from_value::<svbrdf_align::SecondStreamSummary>(
         align["summary"]["second"].clone(),
     ) {

@@ -617,6 +617,15 @@ impl SynthConfig {
                 ),
             ));
         }
+        if !v.also_formats.is_empty() && (self.second_camera.is_some() || self.photos.is_some()) {
+            // The extra folders hold the flash video only; a second camera's video or
+            // the photos would be missing from them.
+            return Err(SynthError::invalid(
+                "extra video formats",
+                "with a second camera or flash photos",
+                "a flash video alone (render those captures once per format)",
+            ));
+        }
         if let Some(ae) = &v.auto_exposure {
             if !(ae.target > 0.0 && ae.target < 1.0) {
                 return Err(SynthError::invalid(

@@ -258,4 +258,18 @@ fn also_video_format_writes_the_same_capture_in_another_format() {
     ]);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("extra video formats"), "{}", stderr(&o));
+    // The extra folders hold the flash video only: a second camera is refused.
+    let o = svbrdf(&[
+        "synth",
+        "--preset",
+        "tiny",
+        "--second-camera",
+        "--out",
+        dir.join("bad2").to_str().unwrap(),
+        "--also-video-format",
+        "hevc-hlg",
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("second camera"), "{}", stderr(&o));
+    assert!(!dir.join("bad2").exists() && !dir.join("bad2.hevc-hlg").exists());
 }
