@@ -33,6 +33,7 @@ pub mod solve;
 mod subframes;
 pub mod support;
 pub mod sync;
+pub mod trace;
 
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -387,7 +388,7 @@ pub fn align(
     cfg.validate()?;
     // Refuse an output that would delete an input or needs --overwrite now, not after
     // minutes of work.
-    if out.exists() && !overwrite {
+    if out.exists() && !overwrite && !output::is_refusal_record(out) {
         return Err(svbrdf_core::CoreError::invalid(
             "output folder",
             out.display(),
@@ -419,8 +420,59 @@ pub fn align(
         }
     };
     timer.lap("decode + features");
+    let mut trace = trace::AlignTrace::default();
+    trace.add_frames(&decoded);
+    let registered = register_and_write(
+        inputs,
+        cfg,
+        out,
+        overwrite,
+        progress,
+        Decoded {
+            frames: decoded,
+            ordered,
+            decoding,
+            ref_img: &ref_img,
+            reference: &reference,
+        },
+        &mut timer,
+        &mut trace,
+    );
+    registered.map_err(|e| output::refuse(inputs, cfg, &reference, &trace, e, out))
+}
+
+/// The decoded input of [`register_and_write`].
+struct Decoded<'a> {
+    frames: Vec<FrameData>,
+    ordered: bool,
+    decoding: Option<VideoDecoding>,
+    ref_img: &'a svbrdf_core::image::ImageU8,
+    reference: &'a reference::ReferenceFrame,
+}
+
+/// Everything after the frames are decoded: registration, its checks and the output.
+/// `trace` says what was tried when this fails.
+#[allow(clippy::too_many_arguments)]
+fn register_and_write(
+    inputs: &AlignInputs,
+    cfg: &AlignConfig,
+    out: &Path,
+    overwrite: bool,
+    progress: &dyn Progress,
+    decoded: Decoded<'_>,
+    timer: &mut Timer,
+    trace: &mut trace::AlignTrace,
+) -> Result<AlignSummary, AlignError> {
+    let Decoded {
+        frames: decoded,
+        ordered,
+        decoding,
+        ref_img,
+        reference,
+    } = decoded;
+    let dict = svbrdf_cv::aruco::Dictionary::from_name(&cfg.camera.marker_dictionary)?;
     let ref_features = if cfg.match_reference {
-        Some(fine::reference_features(&ref_img, &reference, cfg)?)
+        Some(fine::reference_features(ref_img, reference, cfg)?)
     } else {
         None
     };
@@ -438,6 +490,7 @@ pub fn align(
         (Some(v), Some(flash)) => {
             let (frames, summary) = second_stream(v, flash, cfg, dict, progress)?;
             timer.lap("second video: sync + features");
+            trace.add_frames(&frames.frames);
             (Some(frames), Some(summary))
         }
     };
@@ -448,11 +501,12 @@ pub fn align(
             ordered,
             second,
         },
-        &reference,
+        reference,
         ref_features.as_ref(),
         cfg,
         progress,
         &mut |n| timer.lap(n),
+        trace,
     )?;
     if let Some(s) = &mut second_summary {
         s.frames = result.second_drops.clone().unwrap_or_default();
@@ -469,18 +523,20 @@ pub fn align(
         }
     }
     let sweep_cm = check_baseline(&result, &inputs.reference)?;
+    trace.sweep_cm = Some(sweep_cm);
     let mut warnings = Vec::new();
     let mut result = result;
     let region = cfg.region.unwrap_or_else(|| reference.marker_region());
     let checks = if cfg.self_check.enabled {
-        let checks = self_check(&result, &ref_img, &reference, region)?;
+        let checks = self_check(&result, ref_img, reference, region)?;
         timer.lap("self-check");
-        apply_self_check(&mut result, &checks, &cfg.self_check, &mut warnings)?;
+        apply_self_check(&mut result, &checks, &cfg.self_check, &mut warnings, trace)?;
         checks
     } else {
         Vec::new()
     };
     let (covered, missed) = coverage(&result, region)?;
+    trace.coverage = Some(covered);
     if covered < MIN_COVERAGE {
         let sup = &result.support;
         let why = if sup.removed > 0 {
@@ -521,12 +577,12 @@ pub fn align(
     output::write(
         inputs,
         cfg,
-        &reference,
+        reference,
         result,
         second_summary,
         out,
         overwrite,
-        timer.0,
+        std::mem::take(&mut timer.0),
         warnings,
         checks,
         covered,
@@ -678,6 +734,7 @@ fn apply_self_check(
     checks: &[selfcheck::FrameCheck],
     cfg: &selfcheck::SelfCheckConfig,
     warnings: &mut Vec<String>,
+    trace: &mut trace::AlignTrace,
 ) -> Result<(), AlignError> {
     let checked: Vec<&selfcheck::FrameCheck> =
         checks.iter().filter(|c| c.shift_mm.is_some()).collect();
@@ -697,6 +754,11 @@ fn apply_self_check(
     let Some(what) = selfcheck::disagreement(checks, cfg.max_shift_mm) else {
         return Ok(());
     };
+    for c in &bad {
+        if let Some(t) = trace.frame_mut(c.stream, c.frame) {
+            t.fate = trace::Fate::Inconsistent;
+        }
+    }
     if bad.len() as f64 > cfg.max_inconsistent_share * checked.len() as f64 {
         return Err(AlignError::Solve(format!(
             "the registration failed its self-check: {what}, although the solve's residual is small (frames that drifted together, or matches one pattern repeat off on a repetitive texture); expected at most {:.0}% of the frames off by more than {} mm. Film again passing over each marker several times and keeping the phone 10-15 cm from the surface, or lower the frame step in the camera description",

@@ -3,7 +3,7 @@
 //! reference photo (`fine.rs`), marker and reference anchors, initial homographies,
 //! and the global solve over every frame's sub-frames (`subframes.rs`, `solve.rs`).
 
-use std::collections::{BTreeSet, HashMap};
+use std::collections::{BTreeMap, BTreeSet, HashMap};
 
 use rayon::prelude::*;
 use svbrdf_core::geometry::{Intrinsics, Mat3, Pose, Vec2, Vec3};
@@ -19,6 +19,7 @@ use crate::pose::pose_from_homography;
 use crate::reference::ReferenceFrame;
 use crate::solve::{solve, Constraint, SolveReport};
 use crate::subframes::*;
+use crate::trace::{AlignTrace, Fate};
 use crate::{AlignError, DropCounts, Progress};
 
 /// The second stream's decoded frames (times already on the flash camera's clock,
@@ -124,6 +125,7 @@ pub fn register(
     cfg: &AlignConfig,
     progress: &dyn Progress,
     lap: &mut dyn FnMut(&str),
+    trace: &mut AlignTrace,
 ) -> Result<Registration, AlignError> {
     let Streams {
         frames: decoded,
@@ -139,6 +141,11 @@ pub fn register(
     // handful of them gives no statistics).
     let frames = if ordered {
         let (sharp, blurry) = drop_blurry(decoded, cfg.blur_sigmas);
+        for &b in &blurry {
+            if let Some(t) = trace.frame_mut(0, b) {
+                t.fate = Fate::Blurry;
+            }
+        }
         drops.blurry = blurry.len();
         drops.blurry_frames = blurry;
         sharp
@@ -181,6 +188,19 @@ pub fn register(
     // stretch after it; the self-check then verifies each frame against the reference.
     let parts = components(frames.len(), &connectivity.kept);
     let largest = parts.first().map_or(0, Vec::len);
+    trace.coarse_pairs_tested = coarse_tested;
+    trace.coarse_pairs_verified = verified_pairs.len();
+    trace.pieces = parts
+        .iter()
+        .map(|c| c.iter().map(|&i| frames[i].index).collect())
+        .collect();
+    for (k, c) in parts.iter().enumerate() {
+        for &i in c {
+            if let Some(t) = trace.frame_mut(frames[i].stream, frames[i].index) {
+                t.piece = Some(k);
+            }
+        }
+    }
     lap("coarse alignment");
     if largest < 2 {
         return Err(AlignError::Connect(format!(
@@ -248,6 +268,11 @@ pub fn register(
     if let Some(sec) = second {
         let decoded2 = sec.frames.len();
         let (kept2, blurry2) = drop_blurry(sec.frames, cfg.blur_sigmas);
+        for &b in &blurry2 {
+            if let Some(t) = trace.frame_mut(1, b) {
+                t.fate = Fate::Blurry;
+            }
+        }
         second_drops = Some(DropCounts {
             decoded: decoded2,
             blurry: blurry2.len(),
@@ -338,6 +363,12 @@ pub fn register(
     progress.finish();
     lap("fine matching");
     let reference_matches: Vec<usize> = anchored.iter().map(|a| a.1).collect();
+    trace.reference_matches_needed = frames.first().map(|f| fine_min(f, cfg));
+    for (f, &m) in frames.iter().zip(&reference_matches) {
+        if let Some(t) = trace.frame_mut(f.stream, f.index) {
+            t.reference_matches = Some(m);
+        }
+    }
     let per_frame_anchors: Vec<(u64, usize, usize)> = frames
         .iter()
         .zip(&reference_matches)
@@ -391,7 +422,10 @@ pub fn register(
             }
         })
         .collect();
-    let mut pair_h: HashMap<(usize, usize), Mat3> = HashMap::new();
+    // Ordered: frames without anchors of their own get their first map through the
+    // pairs in this order, and a hash map's order differs per process (two runs of the
+    // same capture differed in the ninth digit of every pose).
+    let mut pair_h: BTreeMap<(usize, usize), Mat3> = BTreeMap::new();
     let mut fine_pairs = 0;
     let mut cross_pairs = 0;
     for (i, j, r) in &fine {
@@ -434,6 +468,14 @@ pub fn register(
         .filter(|&i| init[i].is_none() && tied.contains(&part[i]))
         .count();
     let pieces = tied.len();
+    for i in (0..n).filter(|&i| init[i].is_none()) {
+        let fate = if i < n_flash && !tied.contains(&part[i]) {
+            Fate::Disconnected
+        } else {
+            Fate::Unregistered
+        };
+        trace.set_fate(&frames[i], fate);
+    }
     if let Some(d) = &mut second_drops {
         d.unregistered = (n_flash..n).filter(|&i| init[i].is_none()).count();
     }
@@ -602,6 +644,7 @@ pub fn register(
         if (kept_cells as f64) < crate::support::MIN_SUPPORTED_SHARE * grid.len() as f64 {
             support.removed += grid.len();
             support.frames_dropped.push(frames[i].index);
+            trace.set_fate(&frames[i], Fate::Unsupported);
             match (second, &mut second_drops) {
                 (true, Some(d)) => d.unsupported += 1,
                 _ => drops.unsupported += 1,
@@ -664,6 +707,7 @@ pub fn register(
                 (true, Some(d)) => d.unregistered += 1,
                 _ => drops.unregistered += 1,
             }
+            trace.set_fate(&frames[i], Fate::Unregistered);
             continue;
         };
         // The paper's check applies to the hand-held flash camera; the second camera
@@ -678,6 +722,7 @@ pub fn register(
                 (true, Some(d)) => d.outside += 1,
                 _ => drops.outside += 1,
             }
+            trace.set_fate(&frames[i], Fate::Outside);
             continue;
         }
         posed.push((i, blocks, pose));
@@ -704,8 +749,10 @@ pub fn register(
             if let Some(d) = &mut second_drops {
                 d.outside += 1;
             }
+            trace.set_fate(&frames[i], Fate::Outside);
             continue;
         };
+        trace.set_fate(&frames[i], Fate::Kept);
         out_frames.push(frames[i].clone());
         mappings.push(blocks);
         poses.push(pose);

@@ -28,7 +28,7 @@ pub const TRAJECTORY: &str = "trajectory.png";
 /// Connectivity picture.
 pub const CONNECTIVITY: &str = "connectivity.png";
 /// Summary and settings.
-pub const SUMMARY: &str = "align.json";
+pub const SUMMARY: &str = svbrdf_core::capture::ALIGN_RECORD;
 /// Exposure gain curve picture.
 pub const EXPOSURE: &str = "exposure.png";
 
@@ -65,6 +65,128 @@ struct ReferenceCamera {
     /// Each marker's corners in world cm (OpenCV's order: the marker's own top-left,
     /// top-right, bottom-right, bottom-left).
     marker_corners_cm: Vec<(i32, [[f64; 2]; 4])>,
+}
+
+impl ReferenceCamera {
+    fn of(rf: &ReferenceFrame) -> Self {
+        Self {
+            axes: rf.axes.clone(),
+            intrinsics: rf.intrinsics,
+            rotation: mat3_to_rows(&rf.pose.rotation),
+            position: rf.pose.centre.into(),
+            marker_corners_cm: rf
+                .markers
+                .iter()
+                .map(|(id, c)| (*id, c.map(|p| [p.x, p.y])))
+                .collect(),
+        }
+    }
+}
+
+/// `align.json` `status` of a registered capture.
+pub const STATUS_REGISTERED: &str = "registered";
+/// `align.json` `status` of a refused alignment (the folder holds nothing else).
+pub const STATUS_REFUSED: &str = svbrdf_core::capture::ALIGN_STATUS_REFUSED;
+
+/// Whether `out` is a folder that holds only a refused alignment's `align.json`: the
+/// next `align` may replace it without `--overwrite`.
+pub fn is_refusal_record(out: &Path) -> bool {
+    let Ok(entries) = std::fs::read_dir(out) else {
+        return false;
+    };
+    let names: Vec<std::ffi::OsString> = entries.flatten().map(|e| e.file_name()).collect();
+    if names.len() != 1 || names[0] != SUMMARY {
+        return false;
+    }
+    svbrdf_core::fsutil::read_json::<serde_json::Value>(&out.join(SUMMARY))
+        .is_ok_and(|v| v["status"] == STATUS_REFUSED)
+}
+
+/// Record a refused alignment and return its error, with what was tried (one clause)
+/// and the record's path added. The record, `OUT/align.json` with `status: "refused"`,
+/// holds the error, the settings, the reference camera and the trace of every sampled
+/// frame (see `trace`); it is written only where `out` does not exist or holds an
+/// earlier refusal, so a registered capture of an earlier run is never replaced by a
+/// refusal. Errors that are not alignment's judgement (files, settings, OpenCV) are
+/// returned as they are, and so is the error when the record cannot be written.
+pub fn refuse(
+    inputs: &AlignInputs,
+    cfg: &AlignConfig,
+    rf: &ReferenceFrame,
+    trace: &crate::trace::AlignTrace,
+    err: AlignError,
+    out: &Path,
+) -> AlignError {
+    let message = match &err {
+        AlignError::Markers(m)
+        | AlignError::Video(m)
+        | AlignError::Connect(m)
+        | AlignError::Solve(m)
+        | AlignError::SecondStream(m) => m.clone(),
+        _ => return err,
+    };
+    let tried = trace.describe();
+    let written = (!out.exists() || is_refusal_record(out))
+        .then(|| write_refusal(inputs, cfg, rf, trace, &err.to_string(), &tried, out).ok())
+        .flatten();
+    let more = match written {
+        Some(path) => format!(" (tried: {tried}; frame by frame in {})", path.display()),
+        None => format!(" (tried: {tried})"),
+    };
+    let message = format!("{message}{more}");
+    match err {
+        AlignError::Markers(_) => AlignError::Markers(message),
+        AlignError::Video(_) => AlignError::Video(message),
+        AlignError::Connect(_) => AlignError::Connect(message),
+        AlignError::Solve(_) => AlignError::Solve(message),
+        _ => AlignError::SecondStream(message),
+    }
+}
+
+fn write_refusal(
+    inputs: &AlignInputs,
+    cfg: &AlignConfig,
+    rf: &ReferenceFrame,
+    trace: &crate::trace::AlignTrace,
+    error: &str,
+    tried: &str,
+    out: &Path,
+) -> Result<std::path::PathBuf, AlignError> {
+    #[derive(serde::Serialize)]
+    struct Refusal<'a> {
+        status: &'a str,
+        error: &'a str,
+        tried: &'a str,
+        settings: &'a AlignConfig,
+        video: Option<String>,
+        photos: Option<String>,
+        second_video: Option<String>,
+        reference: String,
+        reference_tilt_deg: f64,
+        reference_height_cm: f64,
+        reference_camera: ReferenceCamera,
+        trace: &'a crate::trace::AlignTrace,
+    }
+    let staging = StagingDir::new(out, true, &inputs.paths())?;
+    let show = |p: &Option<std::path::PathBuf>| p.as_ref().map(|v| v.display().to_string());
+    write_json(
+        &staging.path().join(SUMMARY),
+        &Refusal {
+            status: STATUS_REFUSED,
+            error,
+            tried,
+            settings: cfg,
+            video: show(&inputs.video),
+            photos: show(&inputs.photos),
+            second_video: show(&inputs.second_video),
+            reference: inputs.reference.display().to_string(),
+            reference_tilt_deg: rf.tilt.to_degrees(),
+            reference_height_cm: rf.height,
+            reference_camera: ReferenceCamera::of(rf),
+            trace,
+        },
+    )?;
+    Ok(staging.commit()?.join(SUMMARY))
 }
 
 /// Estimate the flash frames' exposure gains into `cap` (unless `fixed_exposure`),
@@ -230,6 +352,7 @@ pub fn write(
     progress: &dyn Progress,
 ) -> Result<AlignSummary, AlignError> {
     let t0 = std::time::Instant::now();
+    let overwrite = overwrite || is_refusal_record(out);
     let staging = StagingDir::new(out, overwrite, &inputs.paths())?;
     let dir = staging.path();
     let region = cfg.region.unwrap_or_else(|| rf.marker_region());
@@ -469,6 +592,7 @@ pub fn write(
     };
     #[derive(serde::Serialize)]
     struct Record<'a> {
+        status: &'a str,
         settings: &'a AlignConfig,
         video: Option<String>,
         photos: Option<String>,
@@ -490,19 +614,10 @@ pub fn write(
                 .as_ref()
                 .map(|v| v.display().to_string()),
             reference: inputs.reference.display().to_string(),
+            status: STATUS_REGISTERED,
             reference_tilt_deg: rf.tilt.to_degrees(),
             reference_height_cm: rf.height,
-            reference_camera: ReferenceCamera {
-                axes: rf.axes.clone(),
-                intrinsics: rf.intrinsics,
-                rotation: mat3_to_rows(&rf.pose.rotation),
-                position: rf.pose.centre.into(),
-                marker_corners_cm: rf
-                    .markers
-                    .iter()
-                    .map(|(id, c)| (*id, c.map(|p| [p.x, p.y])))
-                    .collect(),
-            },
+            reference_camera: ReferenceCamera::of(rf),
             summary: &summary,
         },
     )?;

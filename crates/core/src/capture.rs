@@ -23,6 +23,11 @@ pub const CAPTURE_FORMAT: &str = "svbrdf-registered-capture";
 pub const CAPTURE_VERSION: u32 = 1;
 /// File name inside a capture folder.
 pub const CAPTURE_FILE: &str = "capture.json";
+/// The alignment's record beside `capture.json` (written by `svbrdf align`).
+pub const ALIGN_RECORD: &str = "align.json";
+/// Its `status` when alignment refused the capture: the folder then holds only the
+/// record (what was tried), no `capture.json`.
+pub const ALIGN_STATUS_REFUSED: &str = "refused";
 /// Largest accepted `px_per_cm` (the flags' bound too): 10 um pixels.
 pub const MAX_PX_PER_CM: f64 = 1000.0;
 /// Largest accepted side of the region, cm.
@@ -462,6 +467,23 @@ impl RegisteredCapture {
         } else {
             path.to_path_buf()
         };
+        if path.is_dir() && !file.exists() {
+            // A refused alignment leaves only its record (`align.json`, status
+            // "refused"): say so rather than "no such file".
+            let record = path.join(ALIGN_RECORD);
+            if let Ok(v) = crate::fsutil::read_json::<serde_json::Value>(&record) {
+                if v["status"] == ALIGN_STATUS_REFUSED {
+                    return Err(CoreError::format(
+                        &file,
+                        format!(
+                            "there is no registered capture here: its alignment was refused ({}); what was tried is in {}",
+                            v["error"].as_str().unwrap_or("no reason recorded"),
+                            record.display()
+                        ),
+                    ));
+                }
+            }
+        }
         let cap: Self = crate::fsutil::read_json(&file)?;
         cap.validate(&file)?;
         Ok(cap)

@@ -380,9 +380,102 @@ fn streaky_brushed_metal_is_refused_or_right_never_silently_off() {
     } else {
         assert!(err.contains("sub-frames were left out"), "{err}");
         assert!(err.contains("of the region is seen by"), "{err}");
-        assert!(
-            !out.exists(),
-            "a refused run must not leave an output folder"
-        );
+        refusal_is_recorded_frame_by_frame(&cap, &out, &err);
     }
+}
+
+/// Issue 18 item 5: a refused alignment leaves `align.json` (status "refused") and
+/// nothing else: the error, the reference camera, and every sampled frame with its
+/// blur, whole markers, reference-photo matches against the threshold, its piece of
+/// the connectivity map and what became of it, in counts that agree with the printed
+/// line. `fit` names the refusal; the next `align` replaces the record without
+/// `--overwrite`.
+fn refusal_is_recorded_frame_by_frame(cap: &Path, out: &Path, err: &str) {
+    let names: Vec<String> = std::fs::read_dir(out)
+        .unwrap()
+        .flatten()
+        .map(|e| e.file_name().to_string_lossy().into_owned())
+        .collect();
+    assert_eq!(
+        names,
+        ["align.json"],
+        "a refused run leaves only its record"
+    );
+    let r: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("align.json")).unwrap()).unwrap();
+    assert_eq!(r["status"], "refused");
+    let line = err.lines().find(|l| l.starts_with("error: ")).unwrap();
+    assert!(line.contains(r["error"].as_str().unwrap()), "{line}");
+    assert!(line.contains(r["tried"].as_str().unwrap()), "{line}");
+    assert_eq!(
+        r["reference_camera"]["marker_corners_cm"]
+            .as_array()
+            .unwrap()
+            .len(),
+        4
+    );
+    let t = &r["trace"];
+    let frames = t["per_frame"].as_array().unwrap();
+    // Every sampled frame of the video (every frame_step-th of 90).
+    assert!(frames.len() >= 15, "{}", frames.len());
+    let needed = t["reference_matches_needed"].as_u64().unwrap();
+    assert!(needed > 0);
+    let pieces = t["pieces"].as_array().unwrap();
+    let mut kept = 0;
+    for f in frames {
+        let fate = f["fate"].as_str().unwrap();
+        kept += usize::from(fate == "kept");
+        assert!(f["blur"].as_f64().unwrap() > 0.0, "{f}");
+        assert!(f["markers"].is_array(), "{f}");
+        if fate != "blurry" {
+            // Every sharp frame was matched with the reference photo and lies in a
+            // piece of the connectivity map that lists it.
+            assert!(f["reference_matches"].is_u64(), "{f}");
+            let piece = f["piece"].as_u64().unwrap() as usize;
+            assert!(
+                pieces[piece].as_array().unwrap().contains(&f["frame"]),
+                "{f}"
+            );
+        }
+        if fate == "disconnected" {
+            assert!(
+                f["markers"].as_array().unwrap().is_empty()
+                    || f["reference_matches"].as_u64().unwrap() < needed,
+                "{f}"
+            );
+        }
+    }
+    assert!(
+        line.contains(&format!("{} sampled frames: {kept} kept", frames.len())),
+        "{line}"
+    );
+    assert!(line.contains(&format!("{needed} needed")), "{line}");
+    assert!(
+        line.contains(&out.join("align.json").display().to_string()),
+        "{line}"
+    );
+
+    let o = svbrdf(&[
+        "fit",
+        "--capture",
+        out.to_str().unwrap(),
+        "--out",
+        temp_dir().join("fit-refused").to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    let e = stderr(&o);
+    assert!(e.contains("alignment was refused"), "{e}");
+    // The record is replaced by the next attempt without --overwrite (here refused
+    // the same way: same record).
+    let before = std::fs::read(out.join("align.json")).unwrap();
+    let o = align(cap, out, &[]);
+    assert!(!o.status.success());
+    assert!(!stderr(&o).contains("--overwrite"), "{}", stderr(&o));
+    let mut a: serde_json::Value = serde_json::from_slice(&before).unwrap();
+    let mut b: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("align.json")).unwrap()).unwrap();
+    for v in [&mut a, &mut b] {
+        v["settings"]["out"] = serde_json::Value::Null;
+    }
+    assert_eq!(a["trace"], b["trace"]);
 }
