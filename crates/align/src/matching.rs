@@ -98,25 +98,6 @@ fn drop_blurry(frames: Vec<FrameData>, sigmas: f64) -> (Vec<FrameData>, Vec<u64>
     (sharp, dropped)
 }
 
-/// Linear interpolation of a time-sorted track; `None` outside its span (one
-/// millisecond of slack at either end).
-pub fn interpolate_track(track: &[(f64, Vec3)], t: f64) -> Option<Vec3> {
-    let (first, last) = (track.first()?, track.last()?);
-    if t < first.0 - 1e-3 || t > last.0 + 1e-3 {
-        return None;
-    }
-    let k = track.partition_point(|(tt, _)| *tt <= t);
-    if k == 0 {
-        return Some(first.1);
-    }
-    if k == track.len() {
-        return Some(last.1);
-    }
-    let ((t0, a), (t1, b)) = (track[k - 1], track[k]);
-    let u = if t1 > t0 { (t - t0) / (t1 - t0) } else { 0.0 };
-    Some(a + (b - a) * u)
-}
-
 /// Coarse to fine registration of the decoded frames.
 pub fn register(
     streams: Streams,
@@ -743,7 +724,7 @@ pub fn register(
         let light = if frames[i].stream == 0 {
             Some(pose.camera_to_world(offset))
         } else {
-            interpolate_track(&flash_track, frames[i].time_s)
+            crate::sync::interpolate_track(&flash_track, frames[i].time_s)
         };
         let Some(light) = light else {
             if let Some(d) = &mut second_drops {
@@ -791,26 +772,4 @@ pub fn register(
         solve: report,
         support,
     })
-}
-
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn light_track_interpolates_inside_and_refuses_outside() {
-        let track = vec![
-            (0.0, Vec3::new(0.0, 0.0, 10.0)),
-            (0.5, Vec3::new(1.0, 2.0, 12.0)),
-            (1.0, Vec3::new(3.0, 2.0, 12.0)),
-        ];
-        let p = interpolate_track(&track, 0.25).unwrap();
-        assert!((p - Vec3::new(0.5, 1.0, 11.0)).norm() < 1e-12);
-        let p = interpolate_track(&track, 0.75).unwrap();
-        assert!((p - Vec3::new(2.0, 2.0, 12.0)).norm() < 1e-12);
-        assert_eq!(interpolate_track(&track, 1.0), Some(track[2].1));
-        assert!(interpolate_track(&track, -0.01).is_none());
-        assert!(interpolate_track(&track, 1.01).is_none());
-        assert!(interpolate_track(&[], 0.0).is_none());
-    }
 }

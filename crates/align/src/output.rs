@@ -126,11 +126,16 @@ pub fn refuse(
         _ => return err,
     };
     let tried = trace.describe();
-    let written = (!out.exists() || is_refusal_record(out))
+    let free = !out.exists() || is_refusal_record(out);
+    let written = free
         .then(|| write_refusal(inputs, cfg, rf, trace, &err.to_string(), &tried, out).ok())
         .flatten();
     let more = match written {
         Some(path) => format!(" (tried: {tried}; frame by frame in {})", path.display()),
+        None if !free => format!(
+            " (tried: {tried}; {} holds an earlier result and was left as it was)",
+            out.display()
+        ),
         None => format!(" (tried: {tried})"),
     };
     let message = format!("{message}{more}");

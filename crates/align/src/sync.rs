@@ -13,6 +13,7 @@
 use std::path::Path;
 
 use svbrdf_core::color::srgb8_to_linear_table;
+use svbrdf_core::geometry::Vec3;
 use svbrdf_core::image::ImageU8;
 use svbrdf_cv::video::VideoReader;
 
@@ -156,6 +157,25 @@ pub fn flash_time(index: u64, fps: f64, onset_s: f64) -> f64 {
     index as f64 / fps - onset_s
 }
 
+/// Linear interpolation of a time-sorted track; `None` outside its span (one
+/// millisecond of slack at either end).
+pub fn interpolate_track(track: &[(f64, Vec3)], t: f64) -> Option<Vec3> {
+    let (first, last) = (track.first()?, track.last()?);
+    if t < first.0 - 1e-3 || t > last.0 + 1e-3 {
+        return None;
+    }
+    let k = track.partition_point(|(tt, _)| *tt <= t);
+    if k == 0 {
+        return Some(first.1);
+    }
+    if k == track.len() {
+        return Some(last.1);
+    }
+    let ((t0, a), (t1, b)) = (track[k - 1], track[k]);
+    let u = if t1 > t0 { (t - t0) / (t1 - t0) } else { 0.0 };
+    Some(a + (b - a) * u)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -206,5 +226,22 @@ mod tests {
         let e = find_onset(&p, 30.0, 0.02).unwrap_err();
         assert!(e.contains("no flash onset"), "{e}");
         assert!(find_onset(&p[..2], 30.0, 0.02).is_err());
+    }
+
+    #[test]
+    fn light_track_interpolates_inside_and_refuses_outside() {
+        let track = vec![
+            (0.0, Vec3::new(0.0, 0.0, 10.0)),
+            (0.5, Vec3::new(1.0, 2.0, 12.0)),
+            (1.0, Vec3::new(3.0, 2.0, 12.0)),
+        ];
+        let p = interpolate_track(&track, 0.25).unwrap();
+        assert!((p - Vec3::new(0.5, 1.0, 11.0)).norm() < 1e-12);
+        let p = interpolate_track(&track, 0.75).unwrap();
+        assert!((p - Vec3::new(2.0, 2.0, 12.0)).norm() < 1e-12);
+        assert_eq!(interpolate_track(&track, 1.0), Some(track[2].1));
+        assert!(interpolate_track(&track, -0.01).is_none());
+        assert!(interpolate_track(&track, 1.01).is_none());
+        assert!(interpolate_track(&[], 0.0).is_none());
     }
 }

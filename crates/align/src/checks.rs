@@ -1,0 +1,257 @@
+//! The checks after the global solve: the sweep (a still camera is refused), the
+//! self-check of every registered frame against the reference photo (drop the frames
+//! that disagree, refuse when too many do), and the coverage of the region.
+
+use std::path::Path;
+
+use crate::{frames, matching, reference, selfcheck, trace, AlignError};
+
+/// Check every registered frame against the reference photo (see `selfcheck`).
+pub(crate) fn self_check(
+    reg: &matching::Registration,
+    ref_img: &svbrdf_core::image::ImageU8,
+    reference: &reference::ReferenceFrame,
+    region: svbrdf_core::plane::Region,
+) -> Result<Vec<selfcheck::FrameCheck>, AlignError> {
+    let prepared = prepared_mappings(reg)?;
+    let frames: Vec<selfcheck::CheckedFrame> = reg
+        .frames
+        .iter()
+        .zip(prepared)
+        .map(|(f, mapping)| selfcheck::CheckedFrame {
+            frame: f.index,
+            stream: f.stream,
+            thumb: &f.thumb,
+            width: f.width,
+            mapping,
+        })
+        .collect();
+    Ok(selfcheck::check(
+        ref_img,
+        &reference.plane_from_pixel,
+        region,
+        &frames,
+    ))
+}
+
+/// Each registered frame's mapping, ready for evaluation.
+pub(crate) fn prepared_mappings(
+    reg: &matching::Registration,
+) -> Result<Vec<svbrdf_core::capture::PreparedMapping>, AlignError> {
+    let mut out = Vec::with_capacity(reg.frames.len());
+    for ((f, m), pose) in reg.frames.iter().zip(&reg.mappings).zip(&reg.poses) {
+        let frame = svbrdf_core::capture::Frame {
+            id: 0,
+            source: 0,
+            frame_index: Some(f.index),
+            image: None,
+            time_s: None,
+            width: f.width,
+            height: f.height,
+            mapping: svbrdf_core::capture::FrameMapping::Homographies {
+                subframes: m
+                    .iter()
+                    .map(|(rect, h)| svbrdf_core::capture::SubFrame {
+                        rect: *rect,
+                        plane_from_pixel: svbrdf_core::geometry::mat3_to_rows(h),
+                    })
+                    .collect(),
+            },
+            camera_position: pose.centre.into(),
+            light_position: pose.centre.into(),
+            exposure_gain: None,
+        };
+        out.push(svbrdf_core::capture::PreparedMapping::new(&frame)?);
+    }
+    Ok(out)
+}
+
+/// Least share of the region that kept flash frames must see at least
+/// [`COVERAGE_VIEWS`] times; below it the capture is refused.
+pub const MIN_COVERAGE: f64 = 0.6;
+/// Below this share a warning says which part of the region is thin.
+pub const GOOD_COVERAGE: f64 = 0.97;
+/// Views a plane point needs to count as covered.
+pub const COVERAGE_VIEWS: u32 = 3;
+
+/// Share of the region seen by at least [`COVERAGE_VIEWS`] kept flash frames, and a
+/// description of where the rest lies (5 mm cells).
+pub(crate) fn coverage(
+    reg: &matching::Registration,
+    region: svbrdf_core::plane::Region,
+) -> Result<(f64, String), AlignError> {
+    use rayon::prelude::*;
+    let grid = svbrdf_core::plane::PlaneGrid::new(region, 2.0)?;
+    let prepared = prepared_mappings(reg)?;
+    let flash: Vec<(&svbrdf_core::capture::PreparedMapping, &frames::FrameData)> = prepared
+        .iter()
+        .zip(&reg.frames)
+        .filter(|(_, f)| f.stream == 0)
+        .collect();
+    let views: Vec<u32> = (0..grid.len())
+        .into_par_iter()
+        .map(|i| {
+            let q = grid.pixel_centre(i % grid.width, i / grid.width);
+            flash
+                .iter()
+                .filter(|(m, f)| {
+                    m.plane_to_pixel(q).is_some_and(|p| {
+                        p.x >= -0.5
+                            && p.y >= -0.5
+                            && p.x <= f64::from(f.width) - 0.5
+                            && p.y <= f64::from(f.height) - 0.5
+                    })
+                })
+                .count() as u32
+        })
+        .collect();
+    let thin = views.iter().filter(|v| **v < COVERAGE_VIEWS).count();
+    let share = 1.0 - thin as f64 / views.len().max(1) as f64;
+    if thin == 0 {
+        return Ok((share, String::new()));
+    }
+    // Name the ninths of the region where most cells are thin.
+    let mut thin_in = [[0usize; 3]; 3];
+    let mut all_in = [[0usize; 3]; 3];
+    for (i, v) in views.iter().enumerate() {
+        let (c, r) = (i % grid.width, i / grid.width);
+        let (sx, sy) = ((3 * c / grid.width).min(2), (3 * r / grid.height).min(2));
+        all_in[sy][sx] += 1;
+        if *v < COVERAGE_VIEWS {
+            thin_in[sy][sx] += 1;
+        }
+    }
+    let names = [
+        ["top-left corner", "top edge", "top-right corner"],
+        ["left edge", "middle", "right edge"],
+        ["bottom-left corner", "bottom edge", "bottom-right corner"],
+    ];
+    let mut parts = Vec::new();
+    for sy in 0..3 {
+        for sx in 0..3 {
+            if all_in[sy][sx] > 0 && thin_in[sy][sx] * 2 > all_in[sy][sx] {
+                parts.push(names[sy][sx]);
+            }
+        }
+    }
+    let missed = if parts.is_empty() {
+        "scattered patches across the region".to_string()
+    } else {
+        format!("the {}", parts.join(", "))
+    };
+    Ok((share, missed))
+}
+
+/// Drop the frames the self-check found inconsistent with the reference photo, or
+/// refuse the capture when too many are.
+pub(crate) fn apply_self_check(
+    reg: &mut matching::Registration,
+    checks: &[selfcheck::FrameCheck],
+    cfg: &selfcheck::SelfCheckConfig,
+    warnings: &mut Vec<String>,
+    trace: &mut trace::AlignTrace,
+) -> Result<(), AlignError> {
+    let checked: Vec<&selfcheck::FrameCheck> =
+        checks.iter().filter(|c| c.shift_mm.is_some()).collect();
+    let bad: Vec<&selfcheck::FrameCheck> = checked
+        .iter()
+        .copied()
+        .filter(|c| c.inconsistent(cfg.max_shift_mm))
+        .collect();
+    let unverified = checks.len() - checked.len();
+    if unverified * 2 > checks.len() {
+        warnings.push(format!(
+            "the self-check could verify only {} of {} registered frames against the reference photo (too little matching texture or too much highlight): their registration is unchecked",
+            checked.len(),
+            checks.len()
+        ));
+    }
+    let Some(what) = selfcheck::disagreement(checks, cfg.max_shift_mm) else {
+        return Ok(());
+    };
+    for c in &bad {
+        if let Some(t) = trace.frame_mut(c.stream, c.frame) {
+            t.fate = trace::Fate::Inconsistent;
+        }
+    }
+    if bad.len() as f64 > cfg.max_inconsistent_share * checked.len() as f64 {
+        return Err(AlignError::Solve(format!(
+            "the registration failed its self-check: {what}, although the solve's residual is small (frames that drifted together, or matches one pattern repeat off on a repetitive texture); expected at most {:.0}% of the frames off by more than {} mm. Film again passing over each marker several times and keeping the phone 10-15 cm from the surface, or lower the frame step in the camera description",
+            100.0 * cfg.max_inconsistent_share,
+            cfg.max_shift_mm
+        )));
+    }
+    warnings.push(format!(
+        "{what}; these frames were dropped (self-check against the reference photo)"
+    ));
+    let drop: std::collections::HashSet<usize> = bad.iter().map(|c| c.kept_index).collect();
+    fn retain_kept<T>(v: &mut Vec<T>, drop: &std::collections::HashSet<usize>) {
+        let mut i = 0;
+        v.retain(|_| {
+            i += 1;
+            !drop.contains(&(i - 1))
+        });
+    }
+    retain_kept(&mut reg.frames, &drop);
+    retain_kept(&mut reg.mappings, &drop);
+    retain_kept(&mut reg.poses, &drop);
+    retain_kept(&mut reg.lights, &drop);
+    let flash_dropped = bad.iter().filter(|c| c.stream == 0).count();
+    reg.drops.inconsistent += flash_dropped;
+    reg.drops.kept -= flash_dropped.min(reg.drops.kept);
+    if let Some(d) = &mut reg.second_drops {
+        let n = bad.len() - flash_dropped;
+        d.inconsistent += n;
+        d.kept -= n.min(d.kept);
+    }
+    Ok(())
+}
+
+/// Smallest sweep of the flash camera accepted, cm: the extent of its positions over
+/// the kept frames. A still or barely moving phone sees the surface under one light
+/// direction, from which no BRDF can be fitted.
+pub const MIN_SWEEP_CM: f64 = 1.0;
+
+/// Refuse a capture whose flash camera barely moved.
+pub(crate) fn check_baseline(
+    reg: &matching::Registration,
+    reference: &Path,
+) -> Result<f64, AlignError> {
+    let xy: Vec<(f64, f64)> = reg
+        .poses
+        .iter()
+        .zip(&reg.frames)
+        .filter(|(_, f)| f.stream == 0)
+        .map(|(p, _)| (p.centre.x, p.centre.y))
+        .collect();
+    let extent = |v: &mut dyn Iterator<Item = f64>| {
+        let (lo, hi) = v.fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+            (lo.min(x), hi.max(x))
+        });
+        hi - lo
+    };
+    let sweep = extent(&mut xy.iter().map(|p| p.0)).hypot(extent(&mut xy.iter().map(|p| p.1)));
+    let d = &reg.drops;
+    if xy.len() < 3 && d.decoded >= 3 {
+        // Not a still camera: too few frames registered to tell.
+        return Err(AlignError::Connect(format!(
+            "only {} of {} sampled frames could be registered ({} blurry, {} in pieces not tied to the plane, {} without a usable map, {} mostly extrapolated, {} outside the markers): the frames matched neither each other nor the reference photo well enough (expected most of them; low-contrast or streaky texture under a broad highlight does this). Film more slowly, with the markers in view more often, or lower frame_step in the camera description",
+            xy.len(),
+            d.decoded,
+            d.blurry,
+            d.disconnected,
+            d.unregistered,
+            d.unsupported,
+            d.outside
+        )));
+    }
+    if !(sweep >= MIN_SWEEP_CM) {
+        return Err(AlignError::Video(format!(
+            "the camera barely moved: over its {} registered frames the flash camera's positions span {:.2} cm (expected a sweep of at least {MIN_SWEEP_CM} cm; film 15-30 s moving the phone across the whole surface, see docs/CAPTURE.md; reference photo {})",
+            xy.len(),
+            if sweep.is_finite() { sweep } else { 0.0 },
+            reference.display()
+        )));
+    }
+    Ok(sweep)
+}
