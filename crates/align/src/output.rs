@@ -121,8 +121,9 @@ pub fn refuse(
         AlignError::Markers(m)
         | AlignError::Video(m)
         | AlignError::Connect(m)
-        | AlignError::Solve(m)
-        | AlignError::SecondStream(m) => m.clone(),
+        | AlignError::Solve(m) => m.clone(),
+        // The second video's own refusals (no flash onset, not alignable) name that
+        // video; `run --one-camera-fallback` retries without it: no record.
         _ => return err,
     };
     let tried = trace.describe();
@@ -143,8 +144,7 @@ pub fn refuse(
         AlignError::Markers(_) => AlignError::Markers(message),
         AlignError::Video(_) => AlignError::Video(message),
         AlignError::Connect(_) => AlignError::Connect(message),
-        AlignError::Solve(_) => AlignError::Solve(message),
-        _ => AlignError::SecondStream(message),
+        _ => AlignError::Solve(message),
     }
 }
 
