@@ -67,6 +67,42 @@ struct ReferenceCamera {
     marker_corners_cm: Vec<(i32, [[f64; 2]; 4])>,
 }
 
+/// What every `align.json` starts with, registered or refused.
+#[derive(serde::Serialize)]
+struct RecordHead<'a> {
+    status: &'a str,
+    settings: &'a AlignConfig,
+    video: Option<String>,
+    photos: Option<String>,
+    second_video: Option<String>,
+    reference: String,
+    reference_tilt_deg: f64,
+    reference_height_cm: f64,
+    reference_camera: ReferenceCamera,
+}
+
+impl<'a> RecordHead<'a> {
+    fn of(
+        status: &'a str,
+        inputs: &AlignInputs,
+        cfg: &'a AlignConfig,
+        rf: &ReferenceFrame,
+    ) -> Self {
+        let show = |p: &Option<std::path::PathBuf>| p.as_ref().map(|v| v.display().to_string());
+        Self {
+            status,
+            settings: cfg,
+            video: show(&inputs.video),
+            photos: show(&inputs.photos),
+            second_video: show(&inputs.second_video),
+            reference: inputs.reference.display().to_string(),
+            reference_tilt_deg: rf.tilt.to_degrees(),
+            reference_height_cm: rf.height,
+            reference_camera: ReferenceCamera::of(rf),
+        }
+    }
+}
+
 impl ReferenceCamera {
     fn of(rf: &ReferenceFrame) -> Self {
         Self {
@@ -98,8 +134,7 @@ pub fn is_refusal_record(out: &Path) -> bool {
     if names.len() != 1 || names[0] != SUMMARY {
         return false;
     }
-    svbrdf_core::fsutil::read_json::<serde_json::Value>(&out.join(SUMMARY))
-        .is_ok_and(|v| v["status"] == STATUS_REFUSED)
+    svbrdf_core::capture::refused_alignment(out).is_some()
 }
 
 /// Record a refused alignment and return its error, with what was tried (one clause)
@@ -159,35 +194,19 @@ fn write_refusal(
 ) -> Result<std::path::PathBuf, AlignError> {
     #[derive(serde::Serialize)]
     struct Refusal<'a> {
-        status: &'a str,
+        #[serde(flatten)]
+        head: RecordHead<'a>,
         error: &'a str,
         tried: &'a str,
-        settings: &'a AlignConfig,
-        video: Option<String>,
-        photos: Option<String>,
-        second_video: Option<String>,
-        reference: String,
-        reference_tilt_deg: f64,
-        reference_height_cm: f64,
-        reference_camera: ReferenceCamera,
         trace: &'a crate::trace::AlignTrace,
     }
     let staging = StagingDir::new(out, true, &inputs.paths())?;
-    let show = |p: &Option<std::path::PathBuf>| p.as_ref().map(|v| v.display().to_string());
     write_json(
         &staging.path().join(SUMMARY),
         &Refusal {
-            status: STATUS_REFUSED,
+            head: RecordHead::of(STATUS_REFUSED, inputs, cfg, rf),
             error,
             tried,
-            settings: cfg,
-            video: show(&inputs.video),
-            photos: show(&inputs.photos),
-            second_video: show(&inputs.second_video),
-            reference: inputs.reference.display().to_string(),
-            reference_tilt_deg: rf.tilt.to_degrees(),
-            reference_height_cm: rf.height,
-            reference_camera: ReferenceCamera::of(rf),
             trace,
         },
     )?;
@@ -597,32 +616,14 @@ pub fn write(
     };
     #[derive(serde::Serialize)]
     struct Record<'a> {
-        status: &'a str,
-        settings: &'a AlignConfig,
-        video: Option<String>,
-        photos: Option<String>,
-        second_video: Option<String>,
-        reference: String,
-        reference_tilt_deg: f64,
-        reference_height_cm: f64,
-        reference_camera: ReferenceCamera,
+        #[serde(flatten)]
+        head: RecordHead<'a>,
         summary: &'a AlignSummary,
     }
     write_json(
         &dir.join(SUMMARY),
         &Record {
-            settings: cfg,
-            video: inputs.video.as_ref().map(|v| v.display().to_string()),
-            photos: inputs.photos.as_ref().map(|v| v.display().to_string()),
-            second_video: inputs
-                .second_video
-                .as_ref()
-                .map(|v| v.display().to_string()),
-            reference: inputs.reference.display().to_string(),
-            status: STATUS_REGISTERED,
-            reference_tilt_deg: rf.tilt.to_degrees(),
-            reference_height_cm: rf.height,
-            reference_camera: ReferenceCamera::of(rf),
+            head: RecordHead::of(STATUS_REGISTERED, inputs, cfg, rf),
             summary: &summary,
         },
     )?;

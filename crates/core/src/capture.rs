@@ -28,6 +28,14 @@ pub const ALIGN_RECORD: &str = "align.json";
 /// Its `status` when alignment refused the capture: the folder then holds only the
 /// record (what was tried), no `capture.json`.
 pub const ALIGN_STATUS_REFUSED: &str = "refused";
+
+/// The record in `dir` of a refused alignment (`align.json` whose `status` is
+/// [`ALIGN_STATUS_REFUSED`]), if there is one.
+pub fn refused_alignment(dir: &Path) -> Option<serde_json::Value> {
+    crate::fsutil::read_json::<serde_json::Value>(&dir.join(ALIGN_RECORD))
+        .ok()
+        .filter(|v| v["status"] == ALIGN_STATUS_REFUSED)
+}
 /// Largest accepted `px_per_cm` (the flags' bound too): 10 um pixels.
 pub const MAX_PX_PER_CM: f64 = 1000.0;
 /// Largest accepted side of the region, cm.
@@ -468,20 +476,17 @@ impl RegisteredCapture {
             path.to_path_buf()
         };
         if path.is_dir() && !file.exists() {
-            // A refused alignment leaves only its record (`align.json`, status
-            // "refused"): say so rather than "no such file".
-            let record = path.join(ALIGN_RECORD);
-            if let Ok(v) = crate::fsutil::read_json::<serde_json::Value>(&record) {
-                if v["status"] == ALIGN_STATUS_REFUSED {
-                    return Err(CoreError::format(
-                        &file,
-                        format!(
-                            "there is no registered capture here: its alignment was refused ({}); what was tried is in {}",
-                            v["error"].as_str().unwrap_or("no reason recorded"),
-                            record.display()
-                        ),
-                    ));
-                }
+            // A refused alignment leaves only its record: say so rather than "no such
+            // file".
+            if let Some(v) = refused_alignment(path) {
+                return Err(CoreError::format(
+                    &file,
+                    format!(
+                        "there is no registered capture here: its alignment was refused ({}); what was tried is in {}",
+                        v["error"].as_str().unwrap_or("no reason recorded"),
+                        path.join(ALIGN_RECORD).display()
+                    ),
+                ));
             }
         }
         let cap: Self = crate::fsutil::read_json(&file)?;
