@@ -133,6 +133,12 @@ struct SynthArgs {
     /// seconds, J this many seconds (less than 0.4 frame intervals).
     #[arg(long, value_name = "J")]
     frame_jitter: Option<f64>,
+    /// Room light during the flash video (>= 0; 0: a dark room): adds this times the
+    /// diffuse albedo to every pixel's linear value, where the flash adds
+    /// `I rho_d cos / (pi r^2)` with I = 320 (so 0.1 is 14% of the flash's diffuse light
+    /// at 12 cm). Default: the preset's (0.03; the hard presets 0.1).
+    #[arg(long, value_name = "A")]
+    ambient: Option<f64>,
     /// Reflectance model the material is rendered with: ward (default, the fit's own
     /// model) or ggx (with Fresnel; fit it with Ward to measure model mismatch).
     #[arg(long, value_parser = ["ward", "ggx"])]
@@ -543,6 +549,9 @@ fn synth_config(a: &SynthArgs) -> Result<SynthConfig> {
     }
     if let Some(j) = a.frame_jitter {
         c.video.frame_jitter_s = j;
+    }
+    if let Some(v) = a.ambient {
+        c.light.ambient = v;
     }
     for f in &a.also_video_format {
         c.video
