@@ -102,6 +102,21 @@ pub fn peak_seen(obs: &Observations, p: usize, params: &BrdfParams) -> bool {
     pixel_confidence(obs, p, params)[1] >= SPECULAR_PEAK
 }
 
+/// The share of `pixels` (at most `max` of them, spread evenly) whose highlight under
+/// `params` was seen at its peak or on its flank (specular confidence above 0): how
+/// much of a lobe the observations constrain at all.
+pub fn lobe_seen_share(obs: &Observations, pixels: &[u32], params: &BrdfParams, max: usize) -> f64 {
+    let step = pixels.len().div_ceil(max.max(1)).max(1);
+    let (mut seen, mut n) = (0usize, 0usize);
+    for &p in pixels.iter().step_by(step) {
+        n += 1;
+        if pixel_confidence(obs, p as usize, params)[1] > 0.0 {
+            seen += 1;
+        }
+    }
+    seen as f64 / n.max(1) as f64
+}
+
 /// Confidences of one pixel.
 fn pixel_confidence(obs: &Observations, p: usize, params: &BrdfParams) -> [f32; 3] {
     let range = obs.range(p);
@@ -233,6 +248,30 @@ mod tests {
             "{}",
             summary.sentence()
         );
+    }
+
+    #[test]
+    fn a_lobe_is_seen_under_the_sweep_and_not_beyond_it() {
+        let obs = left_sweep();
+        let lobe = BrdfParams {
+            alpha_x: 0.08,
+            alpha_y: 0.08,
+            ..BrdfParams::default()
+        };
+        let w = obs.grid.width as u32;
+        let columns = |from_cm: f64, to_cm: f64| -> Vec<u32> {
+            let (a, b) = (((from_cm + 8.0) * 2.0) as u32, ((to_cm + 8.0) * 2.0) as u32);
+            (0..obs.pixels() as u32)
+                .filter(|p| (a..b).contains(&(p % w)))
+                .collect()
+        };
+        let under = columns(-6.0, -2.0);
+        let beyond = columns(6.0, 8.0);
+        assert_eq!(lobe_seen_share(&obs, &under, &lobe, 1000), 1.0);
+        assert_eq!(lobe_seen_share(&obs, &beyond, &lobe, 1000), 0.0);
+        // A sample of the pixels gives the same answer; no pixels, no share.
+        assert_eq!(lobe_seen_share(&obs, &under, &lobe, 3), 1.0);
+        assert_eq!(lobe_seen_share(&obs, &[], &lobe, 10), 0.0);
     }
 
     #[test]

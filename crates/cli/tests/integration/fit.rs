@@ -4,7 +4,7 @@
 
 use std::path::Path;
 
-use crate::util::{json_lines, stderr, svbrdf, temp_dir, tiny_capture};
+use crate::util::{json_lines, maps_accuracy, stderr, svbrdf, temp_dir, tiny_capture};
 
 fn png_text(path: &Path) -> Vec<(String, String)> {
     let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(path).unwrap()));
@@ -357,5 +357,62 @@ fn a_sweep_that_never_passes_over_the_edges_leaves_their_gloss_unmeasured() {
     assert!(
         centre < 0.25 && edge > 0.5 && edge > 3.0 * centre,
         "highlight never seen: centre {centre:.2}, edges {edge:.2}"
+    );
+}
+
+/// Tiles, scene seed 1: with each split part fitted only from its parent, two of three
+/// clustering seeds left a glossy motif in a poor local minimum (diffuse RMSE 0.086 and
+/// 0.083 against 0.050: its highlight absorbed into a near-white diffuse albedo). With
+/// restarts at the shallow splits (`split_restart_depth`) every seed stays below 0.055
+/// (measured 0.042-0.049); turned off,
+/// seed 1 is worse again (if it no longer is, the restarts have stopped earning their
+/// cost and the default should be measured again).
+#[test]
+fn the_diffuse_error_on_tiles_does_not_hang_on_the_clustering_seed() {
+    let dir = temp_dir();
+    let cap = dir.join("tiles");
+    let o = svbrdf(&[
+        "synth",
+        "--preset",
+        "tiny",
+        "--material",
+        "tiles",
+        "--seed",
+        "1",
+        "--out",
+        cap.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let fit = |seed: &str, config: Option<&str>| {
+        let out = dir.join(format!("fit-{seed}-{}", config.is_some()));
+        let mut args = vec![
+            "fit".to_string(),
+            "--capture".into(),
+            cap.join("registered").to_string_lossy().into_owned(),
+            "--out".into(),
+            out.to_string_lossy().into_owned(),
+            "--seed".into(),
+            seed.into(),
+        ];
+        if let Some(c) = config {
+            let f = dir.join("config.json");
+            std::fs::write(&f, c).unwrap();
+            args.extend(["--config".into(), f.to_string_lossy().into_owned()]);
+        }
+        let args: Vec<&str> = args.iter().map(String::as_str).collect();
+        let o = svbrdf(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        maps_accuracy(&out, &cap)["diffuse_rmse"].as_f64().unwrap()
+    };
+    let errors: Vec<f64> = ["1", "3"].iter().map(|s| fit(s, None)).collect();
+    assert!(
+        errors.iter().all(|e| *e < 0.055),
+        "diffuse RMSE per seed {errors:?}"
+    );
+    let paper = fit("1", Some(r#"{"split_restart_depth": 0}"#));
+    assert!(
+        paper > 1.2 * errors[0],
+        "from the parent only: {paper}, with restarts {}",
+        errors[0]
     );
 }
