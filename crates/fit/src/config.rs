@@ -59,13 +59,14 @@ pub struct FitConfig {
     /// the better fit kept, unless it invents a highlight that the part's frames never
     /// saw (0: never, as the paper). Shallow splits separate materials, whose pixels
     /// can lie far from the parent's solution; deep ones separate near-identical
-    /// pixels. On 8 `tiny` captures (tiles, brushed metal, leather, patchwork; 2 scene
-    /// seeds; 3 clustering seeds each, true registration) every own fit more than 5%
-    /// better came from a split above level 5, and restarts took the diffuse RMSE from
-    /// 0.0359 to 0.0271 on average and its spread over clustering seeds from 13% to 5%
-    /// (tiles seed 1: 0.050-0.086 -> 0.041-0.049). On the 20 s `paper` capture 254 of
-    /// 7,400 splits lie above level 6, so the limit costs little there; restarting at
-    /// every level cost 50 s for diffuse RMSE 0.0216 -> 0.0213.
+    /// pixels (on `tiny` tiles every own fit more than 5% better came from levels 1-4).
+    /// On 8 `tiny` captures (tiles, brushed metal, leather, patchwork; 2 scene seeds; 3
+    /// clustering seeds each, true registration) the diffuse RMSE went from 0.0359 to
+    /// 0.0270 on average and its spread over clustering seeds from 13% to 6% (tiles seed
+    /// 1: 0.050-0.086 -> 0.041-0.050); neutral on `hard-small` and `paper` (docs/
+    /// BENCHMARKS.md, session 19). On the 20 s `paper` capture 254 of 7,400 splits lie
+    /// above level 6, so the limit costs little there; restarting at every level cost
+    /// 50 s for diffuse RMSE 0.0216 -> 0.0213.
     pub split_restart_depth: usize,
     /// A split is kept only if the children's summed squared error is below
     /// `1 - min_split_gain` times the parent's; otherwise the parent is final. Stops
