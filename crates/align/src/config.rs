@@ -117,6 +117,12 @@ pub struct AlignConfig {
     /// The per-frame gain estimate's settings.
     #[serde(default)]
     pub exposure: svbrdf_core::exposure::ExposureConfig,
+    /// Views of each reference marker wanted among the frames registered: when the
+    /// sampled frames show a marker whole fewer times, every other frame of the video
+    /// is searched for it and the sharpest frame of each pass over it is added (the
+    /// marker hunt, `hunt`). 0 turns the hunt off. Frames, 0 to 8.
+    #[serde(default = "default_marker_views")]
+    pub marker_views: u32,
 }
 
 impl Default for AlignConfig {
@@ -157,12 +163,17 @@ impl Default for AlignConfig {
             sync_offset_s: None,
             trim_second: false,
             cross_pairs_per_frame: 3,
+            marker_views: default_marker_views(),
         }
     }
 }
 
 fn default_max_noise_gain() -> f64 {
     4.0
+}
+
+fn default_marker_views() -> u32 {
+    2
 }
 
 impl AlignConfig {
@@ -253,6 +264,13 @@ impl AlignConfig {
                 "largest sub-frame noise gain",
                 self.max_noise_gain,
                 "a finite number > 0 (default 4; larger keeps more extrapolated sub-frames)",
+            ));
+        }
+        if self.marker_views > 8 {
+            return Err(AlignError::invalid(
+                "marker views",
+                self.marker_views,
+                "0 (no marker hunt) to 8 frames per marker",
             ));
         }
         if self.sharpest_within > 30 {

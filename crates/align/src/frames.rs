@@ -64,7 +64,7 @@ fn unscale(mut f: Features, s: f64) -> Features {
 }
 
 /// The blur metric (eq. 1) of a frame at the coarse scale, and that coarse image.
-fn coarse_blur(luma: &ImageU8, cfg: &AlignConfig) -> Result<(ImageU8, f64), AlignError> {
+pub(crate) fn coarse_blur(luma: &ImageU8, cfg: &AlignConfig) -> Result<(ImageU8, f64), AlignError> {
     let long = luma.width.max(luma.height) as f64;
     let cs = (f64::from(cfg.coarse_long_side) / long).min(1.0);
     let coarse_img = downscaled(luma, cs)?;
@@ -79,7 +79,7 @@ fn coarse_blur(luma: &ImageU8, cfg: &AlignConfig) -> Result<(ImageU8, f64), Alig
 
 /// The per-frame work; `coarse` is the frame's coarse image and blur metric when
 /// already computed (by [`pick_sharpest`]).
-fn process(
+pub(crate) fn process(
     frame: LumaFrame,
     coarse: Option<(ImageU8, f64)>,
     index: u64,

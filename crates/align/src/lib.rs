@@ -23,6 +23,7 @@ pub mod corners;
 pub mod exposure;
 mod fine;
 mod frames;
+pub mod hunt;
 mod matching;
 pub mod output;
 pub mod patch;
@@ -207,6 +208,10 @@ pub struct AlignSummary {
     /// Sub-frames left out because no correspondence of their own fixed their maps.
     #[serde(default)]
     pub support: support::SupportSummary,
+    /// The marker hunt (every frame searched for markers the sampled frames missed),
+    /// where it ran.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub marker_hunt: Option<hunt::MarkerHunt>,
 }
 
 /// What a video's stream says about its colours and what decoding did with it.
@@ -407,10 +412,18 @@ pub fn align(
     let (ref_img, reference) = reference_photo(&inputs.reference, cfg, dict)?;
     timer.lap("reference");
 
-    // Frames: decode, blur metric, markers, features.
+    // Frames: decode, blur metric, markers, features; then the marker hunt.
+    let mut hunted = None;
     let (decoded, ordered, decoding) = match (&inputs.video, &inputs.photos) {
         (Some(v), None) => {
             let (frames, decoding) = frames::decode_frames(v, cfg, dict, progress)?;
+            timer.lap("decode + features");
+            let ids: Vec<i32> = reference.markers.iter().map(|(id, _)| *id).collect();
+            let (frames, found) = hunt::hunt(v, frames, &ids, cfg, dict, progress)?;
+            if found.is_some() {
+                timer.lap("marker hunt");
+            }
+            hunted = found;
             (frames, true, Some(decoding))
         }
         (None, Some(d)) => (frames::read_photos(d, cfg, dict, progress)?, false, None),
@@ -422,9 +435,19 @@ pub fn align(
             ))
         }
     };
-    timer.lap("decode + features");
+    if !ordered {
+        timer.lap("decode + features");
+    }
     let mut trace = trace::AlignTrace::default();
     trace.add_frames(&decoded);
+    if let Some(h) = &hunted {
+        for &f in &h.added {
+            if let Some(t) = trace.frame_mut(0, f) {
+                t.hunted = true;
+            }
+        }
+    }
+    trace.marker_hunt = hunted;
     let registered = register_and_write(
         inputs,
         cfg,
@@ -525,10 +548,11 @@ fn register_and_write(
             )));
         }
     }
+    let mut result = result;
+    result.marker_hunt = trace.marker_hunt.clone();
     let sweep_cm = check_baseline(&result, &inputs.reference)?;
     trace.sweep_cm = Some(sweep_cm);
     let mut warnings = Vec::new();
-    let mut result = result;
     let region = cfg.region.unwrap_or_else(|| reference.marker_region());
     let checks = if cfg.self_check.enabled {
         let checks = self_check(&result, ref_img, reference, region)?;

@@ -82,6 +82,8 @@ pub struct Registration {
     pub solve: SolveReport,
     /// Sub-frames left out as extrapolated, frames dropped for it.
     pub support: crate::support::SupportSummary,
+    /// The marker hunt, where it ran (set by the caller).
+    pub marker_hunt: Option<crate::hunt::MarkerHunt>,
 }
 
 /// The frames the blur metric keeps (eq. 1, per stream) and how many it drops.
@@ -771,5 +773,6 @@ pub fn register(
         per_frame_anchors,
         solve: report,
         support,
+        marker_hunt: None,
     })
 }

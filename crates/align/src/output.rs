@@ -613,6 +613,7 @@ pub fn write(
         video_decoding,
         exposure: Some(exposure),
         support: reg.support.clone(),
+        marker_hunt: reg.marker_hunt.clone(),
     };
     #[derive(serde::Serialize)]
     struct Record<'a> {

@@ -67,6 +67,9 @@ pub struct FrameTrace {
     pub piece: Option<usize>,
     /// What became of it.
     pub fate: Fate,
+    /// Added by the marker hunt (not one of the `frame_step` samples).
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub hunted: bool,
 }
 
 /// Alignment's record of what it tried.
@@ -88,6 +91,9 @@ pub struct AlignTrace {
     pub sweep_cm: Option<f64>,
     /// Share of the region seen by enough registered frames (once measured).
     pub coverage: Option<f64>,
+    /// The marker hunt, where it ran.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub marker_hunt: Option<crate::hunt::MarkerHunt>,
 }
 
 impl AlignTrace {
@@ -103,6 +109,7 @@ impl AlignTrace {
             reference_matches: None,
             piece: None,
             fate: Fate::NotReached,
+            hunted: false,
         }));
     }
 
@@ -184,6 +191,7 @@ mod tests {
             reference_matches: matches,
             piece: None,
             fate,
+            hunted: false,
         }
     }
 

@@ -256,6 +256,16 @@ struct AlignArgs {
     /// (default 1: the sharpest of three; 0: the paper's fixed sampling).
     #[arg(long)]
     sharpest_within: Option<u32>,
+    /// Views of each marker wanted among the registered frames (default 2): where the
+    /// sampled frames show a marker whole fewer times, every other frame is searched for
+    /// it and the sharpest of each pass over it added; 0 turns this marker hunt off.
+    #[arg(long)]
+    marker_views: Option<u32>,
+    /// Do not match frames with the reference photo: only markers tie frames to the
+    /// plane (a diagnostic: what alignment does where the reference photo cannot be
+    /// matched, e.g. under very different light).
+    #[arg(long)]
+    no_reference_matches: bool,
     #[command(flatten)]
     second: SecondArgs,
     /// Replace the output folder if it exists.
@@ -320,6 +330,12 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
     }
     if let Some(v) = a.max_noise_gain {
         c.max_noise_gain = v;
+    }
+    if let Some(v) = a.marker_views {
+        c.marker_views = v;
+    }
+    if a.no_reference_matches {
+        c.match_reference = false;
     }
 
     if let Some(v) = a.fine_features {
@@ -469,6 +485,9 @@ fn run_align(a: &AlignArgs) -> Result<()> {
             },
             v.decoder
         );
+    }
+    if let Some(h) = &s.marker_hunt {
+        say!("{}", h.describe());
     }
     if let Some(line) = s.support.describe() {
         say!("support: {line}");

@@ -323,6 +323,8 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         no_self_check: false,
         max_pairs_per_frame: None,
         sharpest_within: None,
+        marker_views: None,
+        no_reference_matches: false,
         second: a.second.clone(),
         overwrite: true,
     };

@@ -366,6 +366,41 @@ impl VideoReader {
     }
 }
 
+impl VideoReader {
+    /// The next frame as luminance only (no thumbnail), or `None` at the end of the
+    /// stream: the cheapest look at a frame, for searching every frame of a video for
+    /// markers.
+    pub fn read_grey(&mut self) -> Result<Option<ImageU8>, CvError> {
+        if self.pending.is_some() || matches!(self.backend, Backend::Av { .. }) {
+            return match self.read()? {
+                Some(rgb) => {
+                    let mut grey = Mat::default();
+                    opencv::imgproc::cvt_color_def(
+                        &rgb_to_mat(&rgb)?,
+                        &mut grey,
+                        opencv::imgproc::COLOR_BGR2GRAY,
+                    )
+                    .ctx(|| "converting to grey".into())?;
+                    crate::mat_to_grey(&grey).map(Some)
+                }
+                None => Ok(None),
+            };
+        }
+        if !self.decode_mat()? {
+            return Ok(None);
+        }
+        self.time_s = self.opencv_frame_time();
+        self.next_index += 1;
+        let Backend::OpenCv { frame, .. } = &self.backend else {
+            return Ok(None);
+        };
+        let mut grey = Mat::default();
+        opencv::imgproc::cvt_color_def(frame, &mut grey, opencv::imgproc::COLOR_BGR2GRAY)
+            .ctx(|| "converting to grey".into())?;
+        crate::mat_to_grey(&grey).map(Some)
+    }
+}
+
 /// How a reader turns frames into linear light.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Serialize)]
 pub struct Decoding {
