@@ -152,7 +152,7 @@ pub(crate) fn apply_self_check(
     trace: &mut trace::AlignTrace,
 ) -> Result<(), AlignError> {
     let checked: Vec<&selfcheck::FrameCheck> =
-        checks.iter().filter(|c| c.shift_mm.is_some()).collect();
+        checks.iter().filter(|c| c.offset_mm().is_some()).collect();
     let bad: Vec<&selfcheck::FrameCheck> = checked
         .iter()
         .copied()
@@ -205,6 +205,53 @@ pub(crate) fn apply_self_check(
         d.kept -= n.min(d.kept);
     }
     Ok(())
+}
+
+/// Refuse a registration most of whose flash frames nothing independent of the chains
+/// of frames confirms: neither matches of their own with the reference photo (enough
+/// to anchor them) nor the self-check, which found where the reference photo shows
+/// their texture. Markers do not confirm a frame: they lie off the material, and the
+/// rest of the frame hangs on matches with other frames, which on texture that
+/// matches in streaks (brushed metal) or repeats slide along it. Measured with the
+/// reference photo's matches left out (`--no-reference-matches`, markers only), such
+/// registrations succeeded 6-53 mm off while every frame with a marker "anchored"
+/// (docs/BENCHMARKS.md, session 20).
+pub(crate) fn require_confirmation(
+    reg: &matching::Registration,
+    checks: &[selfcheck::FrameCheck],
+) -> Result<(), AlignError> {
+    let verified: std::collections::BTreeSet<(u32, u64)> = checks
+        .iter()
+        .filter(|c| c.offset_mm().is_some())
+        .map(|c| (c.stream, c.frame))
+        .collect();
+    let flash: Vec<(u32, u64)> = reg
+        .frames
+        .iter()
+        .filter(|f| f.stream == 0)
+        .map(|f| (f.stream, f.index))
+        .collect();
+    let tied = flash
+        .iter()
+        .filter(|f| reg.reference_tied.contains(f))
+        .count();
+    let checked = flash
+        .iter()
+        .filter(|f| !reg.reference_tied.contains(f) && verified.contains(f))
+        .count();
+    let unconfirmed: Vec<u64> = flash
+        .iter()
+        .filter(|f| !reg.reference_tied.contains(f) && !verified.contains(f))
+        .map(|f| f.1)
+        .collect();
+    if unconfirmed.len() * 2 <= flash.len() {
+        return Ok(());
+    }
+    Err(AlignError::Solve(format!(
+        "the registration cannot be checked: of its {} registered frames, {tied} matched the reference photo well enough to be tied to it and {checked} more were verified against it by the self-check; frames {} are placed only through other frames and the markers (expected at least half of the frames confirmed by the reference photo: texture that matches in streaks or repeats lets chains of frames bend by millimetres to centimetres unseen). Take the reference photo from 20-30 cm under even light, straight down, with the whole region sharp, or pass --no-self-check to accept the registration unchecked",
+        flash.len(),
+        selfcheck::ranges(&unconfirmed)
+    )))
 }
 
 /// Smallest sweep of the flash camera accepted, cm: the extent of its positions over

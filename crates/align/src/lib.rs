@@ -558,6 +558,7 @@ fn register_and_write(
         let checks = self_check(&result, ref_img, reference, region)?;
         timer.lap("self-check");
         apply_self_check(&mut result, &checks, &cfg.self_check, &mut warnings, trace)?;
+        checks::require_confirmation(&result, &checks)?;
         checks
     } else {
         Vec::new()

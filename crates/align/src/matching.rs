@@ -71,6 +71,8 @@ pub struct Registration {
     pub fine_pairs: usize,
     /// Frames anchored by reference matches.
     pub reference_anchored: usize,
+    /// Those frames, as (stream, frame number).
+    pub reference_tied: BTreeSet<(u32, u64)>,
     /// Frames with markers.
     pub with_markers: usize,
     /// Pieces of the connectivity map tied to the plane separately (1: one chain).
@@ -382,6 +384,12 @@ pub fn register(
         .collect();
     let with_markers = marker_anchors.iter().filter(|a| !a.is_empty()).count();
     let reference_anchored = anchors.iter().filter(|a| !a.is_empty()).count();
+    let reference_tied: BTreeSet<(u32, u64)> = frames
+        .iter()
+        .zip(&anchors)
+        .filter(|(_, a)| !a.is_empty())
+        .map(|(f, _)| (f.stream, f.index))
+        .collect();
 
     // Initial plane_from_pixel homography per frame: from its own absolute anchors,
     // else propagated from a neighbour through the pairwise homography.
@@ -768,6 +776,7 @@ pub fn register(
         coarse_tested,
         fine_pairs,
         reference_anchored,
+        reference_tied,
         with_markers,
         pieces,
         per_frame_anchors,

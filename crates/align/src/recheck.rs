@@ -37,7 +37,10 @@ impl CaptureCheck {
 
     /// Frames no block of which matched the reference photo clearly.
     pub fn unverified(&self) -> usize {
-        self.frames.iter().filter(|c| c.shift_mm.is_none()).count()
+        self.frames
+            .iter()
+            .filter(|c| c.offset_mm().is_none())
+            .count()
     }
 }
 

@@ -39,6 +39,9 @@ const MIN_SCORE: f64 = 0.6;
 const AMBIGUITY: f64 = 0.1;
 /// A block needs this share of its cells seen (and unclipped) in both images.
 const MIN_VALID: f64 = 0.6;
+/// A warp needs at least this many blocks agreeing on one affine displacement field
+/// (three fit any field exactly).
+const WARP_MIN_BLOCKS: usize = 6;
 
 /// Settings of the self-check.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
@@ -88,12 +91,36 @@ pub struct FrameCheck {
     pub max_shift_mm: Option<f64>,
     /// Median correlation of the matched blocks.
     pub score: Option<f64>,
+    /// Displacement from the reference photo where the frame's blocks agree on one
+    /// affine field rather than one shift (a frame registered warped: parts of it off
+    /// by different amounts), mm: the 75th percentile of the field's length over the
+    /// blocks that agree with it (`None`: no such field holds clearly more blocks than
+    /// the shift does; see [`warp`]).
+    #[serde(default)]
+    pub warp_mm: Option<f64>,
+    /// Matched blocks that agree with that affine field.
+    #[serde(default)]
+    pub warp_agreeing: usize,
+    /// Every matched block: its centre on the comparison grid (cm from the region's
+    /// lower corner) and its displacement from the reference photo (mm), as
+    /// `[x_cm, y_cm, dx_mm, dy_mm]`.
+    #[serde(default)]
+    pub block_shifts: Vec<[f64; 4]>,
 }
 
 impl FrameCheck {
     /// Whether this frame disagrees with the reference photo beyond `limit_mm`.
     pub fn inconsistent(&self, limit_mm: f64) -> bool {
-        self.shift_mm.is_some_and(|s| s > limit_mm)
+        self.offset_mm().is_some_and(|s| s > limit_mm)
+    }
+
+    /// How far the frame lies from the reference photo, mm: its shift, or where its
+    /// blocks agree on a warp, the larger of the two.
+    pub fn offset_mm(&self) -> Option<f64> {
+        match (self.shift_mm, self.warp_mm) {
+            (Some(s), Some(w)) => Some(s.max(w)),
+            (s, w) => s.or(w),
+        }
     }
 }
 
@@ -344,6 +371,7 @@ fn check_frame(
     let coarse = fine.reduce(COARSE);
     let n = BLOCK_COARSE;
     let mut shifts = Vec::new();
+    let mut centres = Vec::new();
     let mut scores = Vec::new();
     let mut blocks = 0;
     // Blocks on a half-overlapping lattice of coarse cells.
@@ -389,6 +417,8 @@ fn check_frame(
                     let dx = s.0 as f64 + parabola(nb[0], v, nb[1]);
                     let dy = s.1 as f64 + parabola(nb[2], v, nb[3]);
                     shifts.push((10.0 * dx / FINE_PX_PER_CM, 10.0 * dy / FINE_PX_PER_CM));
+                    let centre = |b: usize| (b * COARSE) as f64 + 0.5 * (n * COARSE) as f64;
+                    centres.push((centre(bx) / FINE_PX_PER_CM, centre(by) / FINE_PX_PER_CM));
                     scores.push(v);
                 }
             }
@@ -405,6 +435,12 @@ fn check_frame(
         .map(|s| s.0.hypot(s.1))
         .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
     let (shift, agreeing) = consensus(&shifts);
+    let blocks_mm: Vec<[f64; 4]> = centres
+        .iter()
+        .zip(&shifts)
+        .map(|(c, s)| [c.0, c.1, s.0, s.1])
+        .collect();
+    let (warp_mm, warp_agreeing) = warp(&blocks_mm, agreeing);
     FrameCheck {
         kept_index: k,
         frame: f.frame,
@@ -415,6 +451,9 @@ fn check_frame(
         shift_mm: shift,
         max_shift_mm: max,
         score: median(&mut scores),
+        warp_mm,
+        warp_agreeing,
+        block_shifts: blocks_mm,
     }
 }
 
@@ -425,10 +464,7 @@ fn check_frame(
 /// when it has fewer than a third of the matched blocks (or fewer than 2): the frame
 /// is then unverified, not inconsistent.
 fn consensus(shifts: &[(f64, f64)]) -> (Option<f64>, usize) {
-    let close = |a: (f64, f64), b: (f64, f64)| {
-        let tol = (0.25 * a.0.hypot(a.1)).max(CONSENSUS_MM);
-        (a.0 - b.0).hypot(a.1 - b.1) <= tol
-    };
+    let close = agree;
     let Some(best) = shifts
         .iter()
         .map(|&a| {
@@ -459,12 +495,111 @@ fn consensus(shifts: &[(f64, f64)]) -> (Option<f64>, usize) {
     (Some(mx.hypot(my)), agreeing)
 }
 
+/// Whether two displacements agree (mm): within 0.5 mm or a quarter of the first.
+fn agree(a: (f64, f64), b: (f64, f64)) -> bool {
+    let tol = (0.25 * a.0.hypot(a.1)).max(CONSENSUS_MM);
+    (a.0 - b.0).hypot(a.1 - b.1) <= tol
+}
+
+/// An affine displacement field `d = M [x, y, 1]` (rows: dx, dy).
+type Affine = [[f64; 3]; 2];
+
+fn apply(m: &Affine, x: f64, y: f64) -> (f64, f64) {
+    (
+        m[0][0] * x + m[0][1] * y + m[0][2],
+        m[1][0] * x + m[1][1] * y + m[1][2],
+    )
+}
+
+/// Least-squares affine field through blocks `[x, y, dx, dy]` (`None` when their
+/// positions are collinear).
+fn fit_affine(blocks: &[&[f64; 4]]) -> Option<Affine> {
+    use svbrdf_core::geometry::{Mat3, Vec3};
+    let mut ata = Mat3::zeros();
+    let (mut bx, mut by) = (Vec3::zeros(), Vec3::zeros());
+    for b in blocks {
+        let a = Vec3::new(b[0], b[1], 1.0);
+        ata += a * a.transpose();
+        bx += a * b[2];
+        by += a * b[3];
+    }
+    // Relative to the positions' spread: collinear blocks fix no affine field.
+    let scale = ata[(0, 0)].max(ata[(1, 1)]).max(1.0);
+    if ata.determinant().abs() < 1e-9 * scale * scale * ata[(2, 2)] {
+        return None;
+    }
+    let inv = ata.try_inverse()?;
+    let (mx, my) = (inv * bx, inv * by);
+    let m = [[mx.x, mx.y, mx.z], [my.x, my.y, my.z]];
+    m.iter().flatten().all(|v| v.is_finite()).then_some(m)
+}
+
+/// A frame registered warped: its blocks' displacements from the reference photo
+/// (`[x_cm, y_cm, dx_mm, dy_mm]`) disagree on one shift but agree on one affine field
+/// (parts of the frame off by different amounts: a stretch of the panorama bent
+/// between anchors). Every triple of blocks proposes a field; the one most blocks
+/// agree with (as in [`consensus`]) is refitted to them. It counts only with at least
+/// [`WARP_MIN_BLOCKS`] blocks, half of the matched ones, and a quarter of them (at
+/// least 2) more than the shift's group (`shift_agreeing`): blocks matched by a
+/// highlight or a repeat point every which way, and no field gathers them. Returns
+/// the 75th percentile of the field's length over its blocks (mm) and their count.
+fn warp(blocks: &[[f64; 4]], shift_agreeing: usize) -> (Option<f64>, usize) {
+    let n = blocks.len();
+    if n < WARP_MIN_BLOCKS {
+        return (None, 0);
+    }
+    // At most 40 blocks propose fields (about 10,000 triples), all of them vote.
+    let m = n.min(40);
+    let inliers = |f: &Affine| -> Vec<&[f64; 4]> {
+        blocks
+            .iter()
+            .filter(|b| agree((b[2], b[3]), apply(f, b[0], b[1])))
+            .collect()
+    };
+    let mut best: Option<(usize, Affine)> = None;
+    for i in 0..m {
+        for j in i + 1..m {
+            for k in j + 1..m {
+                let Some(f) = fit_affine(&[&blocks[i], &blocks[j], &blocks[k]]) else {
+                    continue;
+                };
+                let c = inliers(&f).len();
+                if best.is_none_or(|(b, _)| c > b) {
+                    best = Some((c, f));
+                }
+            }
+        }
+    }
+    let Some((_, f)) = best else {
+        return (None, 0);
+    };
+    let group = inliers(&f);
+    let Some(f) = fit_affine(&group) else {
+        return (None, 0);
+    };
+    let group = inliers(&f);
+    let count = group.len();
+    let margin = n.div_ceil(4).max(2);
+    if count < WARP_MIN_BLOCKS || 2 * count < n || count < shift_agreeing + margin {
+        return (None, count);
+    }
+    let mut len: Vec<f64> = group
+        .iter()
+        .map(|b| {
+            let d = apply(&f, b[0], b[1]);
+            d.0.hypot(d.1)
+        })
+        .collect();
+    len.sort_by(f64::total_cmp);
+    (Some(len[(3 * len.len()) / 4]), count)
+}
+
 /// How many frames the check verified (their offset is known), and the largest offset
 /// among them, mm (0 when none).
 pub fn verified(checks: &[FrameCheck]) -> (usize, f64) {
     checks
         .iter()
-        .filter_map(|c| c.shift_mm)
+        .filter_map(FrameCheck::offset_mm)
         .fold((0, 0.0), |(n, m), s| (n + 1, f64::max(m, s)))
 }
 
@@ -473,14 +608,27 @@ pub fn verified(checks: &[FrameCheck]) -> (usize, f64) {
 /// same texture"), or `None` when no frame is.
 pub fn disagreement(checks: &[FrameCheck], limit_mm: f64) -> Option<String> {
     let bad: Vec<&FrameCheck> = checks.iter().filter(|c| c.inconsistent(limit_mm)).collect();
-    let mut sorted: Vec<f64> = bad.iter().filter_map(|c| c.shift_mm).collect();
+    let mut sorted: Vec<f64> = bad.iter().filter_map(|c| c.offset_mm()).collect();
     if sorted.is_empty() {
         return None;
     }
     sorted.sort_by(f64::total_cmp);
     let frames: Vec<u64> = bad.iter().map(|c| c.frame).collect();
+    let bent: Vec<u64> = bad
+        .iter()
+        .filter(|c| c.warp_mm.is_some_and(|w| w > limit_mm))
+        .map(|c| c.frame)
+        .collect();
+    let bent = if bent.is_empty() {
+        String::new()
+    } else {
+        format!(
+            " (frames {} bent: parts of each off by different amounts)",
+            ranges(&bent)
+        )
+    };
     Some(format!(
-        "frames {} ({} of {} checked) lie {:.1}-{:.1} mm (median {:.1} mm) from where the reference photo shows the same texture",
+        "frames {} ({} of {} checked) lie {:.1}-{:.1} mm (median {:.1} mm) from where the reference photo shows the same texture{bent}",
         ranges(&frames),
         bad.len(),
         verified(checks).0,
@@ -707,6 +855,87 @@ mod tests {
         ];
         assert_eq!(consensus(&u).0, None);
         assert_eq!(consensus(&[]), (None, 0));
+    }
+
+    /// Blocks on a 2 cm lattice of a 10 x 18 cm frame, displaced by `d(x, y)` mm.
+    fn lattice(d: impl Fn(f64, f64) -> (f64, f64)) -> Vec<[f64; 4]> {
+        let mut v = Vec::new();
+        for j in 0..8 {
+            for i in 0..4 {
+                let (x, y) = (2.0 + 2.0 * f64::from(i), 2.0 + 2.0 * f64::from(j));
+                let (dx, dy) = d(x, y);
+                v.push([x, y, dx, dy]);
+            }
+        }
+        v
+    }
+
+    #[test]
+    fn a_bent_frame_is_found_where_no_shift_explains_it() {
+        // Off by 0 mm at one end and 4 mm at the other (a stretch bent between
+        // anchors): no shift holds most blocks, one affine field holds them all.
+        let bent = lattice(|_, y| (0.25 * y, 0.0));
+        let shifts: Vec<(f64, f64)> = bent.iter().map(|b| (b[2], b[3])).collect();
+        let (shift, agreeing) = consensus(&shifts);
+        let (w, n) = warp(&bent, agreeing);
+        assert_eq!(n, bent.len());
+        // Its blocks lie 0.5-4.5 mm off; the 75th percentile of the field is 3.5 mm.
+        assert!(w.is_some_and(|w| (w - 3.5).abs() < 0.3), "{w:?} {shift:?}");
+        let c = FrameCheck {
+            kept_index: 0,
+            frame: 7,
+            stream: 0,
+            blocks: n,
+            matched: n,
+            agreeing,
+            shift_mm: shift,
+            max_shift_mm: None,
+            score: None,
+            warp_mm: w,
+            warp_agreeing: n,
+            block_shifts: bent,
+        };
+        assert!(c.inconsistent(1.0));
+        let line = disagreement(&[c], 1.0).unwrap_or_default();
+        assert!(line.contains("frames 7 bent"), "{line}");
+
+        // A frame registered right, or moved rigidly: the shift explains it, no warp.
+        let right = lattice(|x, y| (0.02 * (x - y).sin(), 0.02 * (x + y).cos()));
+        let moved = lattice(|_, _| (3.0, 0.0));
+        for blocks in [right, moved] {
+            let shifts: Vec<(f64, f64)> = blocks.iter().map(|b| (b[2], b[3])).collect();
+            let (_, agreeing) = consensus(&shifts);
+            assert_eq!(warp(&blocks, agreeing).0, None);
+        }
+    }
+
+    #[test]
+    fn strays_of_a_highlight_make_no_warp() {
+        // Half the blocks in place, the others matched every which way (the highlight
+        // of 4K patchwork seed 2, frame 151): no field gathers them.
+        let mut blocks = lattice(|_, _| (0.0, 0.0));
+        let strays = [
+            (-3.4, 27.0),
+            (-4.6, 28.9),
+            (9.6, 1.4),
+            (6.5, 5.7),
+            (6.5, -1.1),
+            (-12.0, 2.0),
+            (20.0, -7.0),
+            (-2.0, -15.0),
+        ];
+        for (k, d) in strays.iter().enumerate() {
+            let b = &mut blocks[3 * k + 1];
+            b[2] = d.0;
+            b[3] = d.1;
+        }
+        let shifts: Vec<(f64, f64)> = blocks.iter().map(|b| (b[2], b[3])).collect();
+        let (shift, agreeing) = consensus(&shifts);
+        assert!(shift.is_some_and(|s| s < 0.05));
+        assert_eq!(warp(&blocks, agreeing).0, None);
+        // Too few blocks to tell a field from noise.
+        let few: Vec<[f64; 4]> = lattice(|_, y| (0.5 * y, 0.0)).into_iter().take(5).collect();
+        assert_eq!(warp(&few, 1), (None, 0));
     }
 
     #[test]
