@@ -70,6 +70,8 @@ struct ReferenceCamera {
 /// What every `align.json` starts with, registered or refused.
 #[derive(serde::Serialize)]
 struct RecordHead<'a> {
+    format: &'static str,
+    version: u32,
     status: &'a str,
     settings: &'a AlignConfig,
     video: Option<String>,
@@ -90,6 +92,8 @@ impl<'a> RecordHead<'a> {
     ) -> Self {
         let show = |p: &Option<std::path::PathBuf>| p.as_ref().map(|v| v.display().to_string());
         Self {
+            format: svbrdf_core::capture::ALIGN_FORMAT,
+            version: svbrdf_core::capture::ALIGN_VERSION,
             status,
             settings: cfg,
             video: show(&inputs.video),

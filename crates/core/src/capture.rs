@@ -25,6 +25,11 @@ pub const CAPTURE_VERSION: u32 = 1;
 pub const CAPTURE_FILE: &str = "capture.json";
 /// The alignment's record beside `capture.json` (written by `svbrdf align`).
 pub const ALIGN_RECORD: &str = "align.json";
+/// The record's `format` field (records written before session 20 have none).
+pub const ALIGN_FORMAT: &str = "svbrdf-align";
+/// The record's `version`, raised when a field changes meaning (new fields do not
+/// raise it: readers ignore fields they do not know).
+pub const ALIGN_VERSION: u32 = 1;
 /// Its `status` when alignment refused the capture: the folder then holds only the
 /// record (what was tried), no `capture.json`.
 pub const ALIGN_STATUS_REFUSED: &str = "refused";

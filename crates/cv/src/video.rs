@@ -348,41 +348,25 @@ impl VideoReader {
     /// `None` at the end of the stream: the full-resolution colour image never leaves
     /// OpenCV, which saves two 25 MB copies per 4K frame.
     pub fn read_luma(&mut self, thumb_long: u32) -> Result<Option<LumaFrame>, CvError> {
-        if self.pending.is_some() || matches!(self.backend, Backend::Av { .. }) {
-            return match self.read()? {
-                Some(rgb) => luma_frame_of(&rgb, thumb_long).map(Some),
-                None => Ok(None),
-            };
-        }
-        if !self.decode_mat()? {
-            return Ok(None);
-        }
-        self.time_s = self.opencv_frame_time();
-        self.next_index += 1;
-        let Backend::OpenCv { frame, .. } = &self.backend else {
-            return Ok(None);
-        };
-        luma_frame_of_mat(frame, thumb_long).map(Some)
+        self.with_next_bgr(|bgr| luma_frame_of_mat(bgr, thumb_long))
     }
-}
 
-impl VideoReader {
     /// The next frame as luminance only (no thumbnail), or `None` at the end of the
     /// stream: the cheapest look at a frame, for searching every frame of a video for
     /// markers.
     pub fn read_grey(&mut self) -> Result<Option<ImageU8>, CvError> {
+        self.with_next_bgr(grey_of_mat)
+    }
+
+    /// `f` of the next frame as an 8-bit BGR matrix (OpenCV's own decoded frame, not a
+    /// copy, where OpenCV decodes), or `None` at the end of the stream.
+    fn with_next_bgr<T>(
+        &mut self,
+        f: impl FnOnce(&Mat) -> Result<T, CvError>,
+    ) -> Result<Option<T>, CvError> {
         if self.pending.is_some() || matches!(self.backend, Backend::Av { .. }) {
             return match self.read()? {
-                Some(rgb) => {
-                    let mut grey = Mat::default();
-                    opencv::imgproc::cvt_color_def(
-                        &rgb_to_mat(&rgb)?,
-                        &mut grey,
-                        opencv::imgproc::COLOR_BGR2GRAY,
-                    )
-                    .ctx(|| "converting to grey".into())?;
-                    crate::mat_to_grey(&grey).map(Some)
-                }
+                Some(rgb) => f(&rgb_to_mat(&rgb)?).map(Some),
                 None => Ok(None),
             };
         }
@@ -394,11 +378,16 @@ impl VideoReader {
         let Backend::OpenCv { frame, .. } = &self.backend else {
             return Ok(None);
         };
-        let mut grey = Mat::default();
-        opencv::imgproc::cvt_color_def(frame, &mut grey, opencv::imgproc::COLOR_BGR2GRAY)
-            .ctx(|| "converting to grey".into())?;
-        crate::mat_to_grey(&grey).map(Some)
+        f(frame).map(Some)
     }
+}
+
+/// Luminance (Rec. 601 weights) of an 8-bit BGR matrix.
+fn grey_of_mat(bgr: &Mat) -> Result<ImageU8, CvError> {
+    let mut grey = Mat::default();
+    opencv::imgproc::cvt_color_def(bgr, &mut grey, opencv::imgproc::COLOR_BGR2GRAY)
+        .ctx(|| "converting to grey".into())?;
+    crate::mat_to_grey(&grey)
 }
 
 /// How a reader turns frames into linear light.
@@ -433,11 +422,8 @@ pub struct LumaFrame {
 }
 
 fn luma_frame_of_mat(bgr: &Mat, thumb_long: u32) -> Result<LumaFrame, CvError> {
-    let mut grey = Mat::default();
-    opencv::imgproc::cvt_color_def(bgr, &mut grey, opencv::imgproc::COLOR_BGR2GRAY)
-        .ctx(|| "converting to grey".into())?;
     Ok(LumaFrame {
-        luma: crate::mat_to_grey(&grey)?,
+        luma: grey_of_mat(bgr)?,
         thumb: linear_thumbnail(bgr, thumb_long)?,
     })
 }

@@ -11,6 +11,26 @@ fn align(cap: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
     crate::util::align_synth(cap, out, extra)
 }
 
+/// A tiny capture of brushed metal (seed 1) rendered with `brdf`, in a new folder.
+fn tiny_brushed_metal(name: &str, brdf: &str) -> std::path::PathBuf {
+    let cap = temp_dir().join(name);
+    let o = svbrdf(&[
+        "synth",
+        "--preset",
+        "tiny",
+        "--material",
+        "brushed-metal",
+        "--brdf",
+        brdf,
+        "--seed",
+        "1",
+        "--out",
+        cap.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    cap
+}
+
 /// `svbrdf bench --align-capture OUT --truth CAP`: the alignment's accuracy.
 fn alignment_accuracy(out: &Path, cap: &Path) -> serde_json::Value {
     let o = svbrdf(&[
@@ -247,6 +267,8 @@ fn hard_small_tiles_align_within_the_issue_18_bounds() {
     assert!(o.status.success(), "{}", stderr(&o));
     let rec: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("align.json")).unwrap()).unwrap();
+    assert_eq!(rec["format"], "svbrdf-align");
+    assert_eq!(rec["version"], 1);
     assert_eq!(rec["reference_camera"]["axes"], "markers");
     assert_eq!(
         rec["reference_camera"]["marker_corners_cm"]
@@ -387,21 +409,7 @@ fn hard_small_tiles_align_within_the_issue_18_bounds() {
 /// with a line that says why; should alignment ever succeed here, it must be right.
 #[test]
 fn streaky_brushed_metal_is_refused_or_right_never_silently_off() {
-    let cap = temp_dir().join("brushed");
-    let o = svbrdf(&[
-        "synth",
-        "--preset",
-        "tiny",
-        "--material",
-        "brushed-metal",
-        "--brdf",
-        "ggx",
-        "--seed",
-        "1",
-        "--out",
-        cap.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let cap = tiny_brushed_metal("brushed", "ggx");
     let out = temp_dir().join("aligned");
     let o = align(&cap, &out, &[]);
     let err = stderr(&o);
@@ -520,19 +528,7 @@ fn refusal_is_recorded_frame_by_frame(cap: &Path, out: &Path, err: &str) {
 /// the same capture aligned with the reference photo's matches is registered right.
 #[test]
 fn markers_alone_do_not_confirm_a_registration() {
-    let cap = temp_dir().join("brushed-ward");
-    let o = svbrdf(&[
-        "synth",
-        "--preset",
-        "tiny",
-        "--material",
-        "brushed-metal",
-        "--seed",
-        "1",
-        "--out",
-        cap.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let cap = tiny_brushed_metal("brushed-ward", "ward");
     let out = temp_dir().join("markers-only");
     let o = align(&cap, &out, &["--no-reference-matches"]);
     let err = stderr(&o);
