@@ -32,19 +32,28 @@ pub fn blur_metric(grey: &[f32], width: usize, height: usize) -> f64 {
     sum / (width * height) as f64
 }
 
+/// The metric below which a frame is blurry: `sigmas` standard deviations below the
+/// mean over all frames (`None` with fewer than 3 frames: no statistics).
+pub fn blur_threshold(metrics: &[f64], sigmas: f64) -> Option<f64> {
+    if metrics.len() < 3 {
+        return None;
+    }
+    let n = metrics.len() as f64;
+    let mean = metrics.iter().sum::<f64>() / n;
+    let sd = (metrics.iter().map(|m| (m - mean).powi(2)).sum::<f64>() / n).sqrt();
+    Some(mean - sigmas * sd)
+}
+
 /// Indices of frames to drop: metric more than `sigmas` standard deviations below the
 /// mean over all frames.
 pub fn blurry_frames(metrics: &[f64], sigmas: f64) -> Vec<usize> {
-    let n = metrics.len() as f64;
-    if metrics.len() < 3 {
+    let Some(t) = blur_threshold(metrics, sigmas) else {
         return Vec::new();
-    }
-    let mean = metrics.iter().sum::<f64>() / n;
-    let sd = (metrics.iter().map(|m| (m - mean).powi(2)).sum::<f64>() / n).sqrt();
+    };
     metrics
         .iter()
         .enumerate()
-        .filter(|(_, m)| **m < mean - sigmas * sd)
+        .filter(|(_, m)| **m < t)
         .map(|(i, _)| i)
         .collect()
 }

@@ -63,17 +63,23 @@ fn unscale(mut f: Features, s: f64) -> Features {
     f
 }
 
-/// The blur metric (eq. 1) of a frame at the coarse scale, and that coarse image.
-pub(crate) fn coarse_blur(luma: &ImageU8, cfg: &AlignConfig) -> Result<(ImageU8, f64), AlignError> {
+/// A frame reduced to the coarse scale (long side `coarse_long_side`).
+pub(crate) fn coarse_image(luma: &ImageU8, cfg: &AlignConfig) -> Result<ImageU8, AlignError> {
     let long = luma.width.max(luma.height) as f64;
     let cs = (f64::from(cfg.coarse_long_side) / long).min(1.0);
-    let coarse_img = downscaled(luma, cs)?;
-    let grey: Vec<f32> = coarse_img
-        .data
-        .iter()
-        .map(|&v| f32::from(v) / 255.0)
-        .collect();
-    let blur = blur_metric(&grey, coarse_img.width, coarse_img.height);
+    Ok(downscaled(luma, cs)?)
+}
+
+/// Eq. (1) of an 8-bit grey image.
+pub(crate) fn blur_of(img: &ImageU8) -> f64 {
+    let grey: Vec<f32> = img.data.iter().map(|&v| f32::from(v) / 255.0).collect();
+    blur_metric(&grey, img.width, img.height)
+}
+
+/// The blur metric (eq. 1) of a frame at the coarse scale, and that coarse image.
+fn coarse_blur(luma: &ImageU8, cfg: &AlignConfig) -> Result<(ImageU8, f64), AlignError> {
+    let coarse_img = coarse_image(luma, cfg)?;
+    let blur = blur_of(&coarse_img);
     Ok((coarse_img, blur))
 }
 

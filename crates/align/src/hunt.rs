@@ -15,20 +15,19 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use svbrdf_core::image::ImageU8;
 use svbrdf_cv::aruco::{detect_markers, Dictionary};
-use svbrdf_cv::features::downscaled;
 use svbrdf_cv::video::VideoReader;
 
-use crate::blur::blur_metric;
+use crate::blur::blur_threshold;
 use crate::config::AlignConfig;
-use crate::frames::{process, FrameData, THUMB_LONG};
+use crate::frames::{blur_of, coarse_image, process, FrameData, THUMB_LONG};
 use crate::{AlignError, Progress};
 
 /// Frames of one pass over a marker lie at most this many frames apart (the sampled
 /// frames, which the hunt does not search, sit between them).
 const PASS_GAP: u64 = 3;
 
-/// At most this many frames are added per wanted marker and view: a bound on the extra
-/// work when a marker is seen in many short passes.
+/// At most this many frames are added in all (and never more than the views still
+/// wanted): a bound on the extra work.
 const MAX_ADDED: usize = 16;
 
 /// What the marker hunt did, as `align.json` records it.
@@ -161,9 +160,7 @@ fn search(
     cfg: &AlignConfig,
     dict: Dictionary,
 ) -> Result<Option<(Vec<i32>, f64)>, AlignError> {
-    let long = grey.width.max(grey.height) as f64;
-    let cs = (f64::from(cfg.coarse_long_side) / long).min(1.0);
-    let coarse = downscaled(grey, cs)?;
+    let coarse = coarse_image(grey, cfg)?;
     let mut found: Vec<i32> = detect_markers(&coarse, dict)?
         .into_iter()
         .map(|m| m.id)
@@ -174,8 +171,7 @@ fn search(
     }
     found.sort_unstable();
     found.dedup();
-    let g: Vec<f32> = coarse.data.iter().map(|&v| f32::from(v) / 255.0).collect();
-    Ok(Some((found, blur_metric(&g, coarse.width, coarse.height))))
+    Ok(Some((found, blur_of(&coarse))))
 }
 
 /// Views of each id among the frames' whole markers.
@@ -264,14 +260,8 @@ pub fn hunt(
 
     // Sharp enough: not below what the blur selection would drop among the sampled
     // frames (eq. 1 at the same scale).
-    let n = frames.len() as f64;
-    let min_blur = if frames.len() >= 3 {
-        let mean = frames.iter().map(|f| f.blur).sum::<f64>() / n;
-        let sd = (frames.iter().map(|f| (f.blur - mean).powi(2)).sum::<f64>() / n).sqrt();
-        mean - cfg.blur_sigmas * sd
-    } else {
-        f64::NEG_INFINITY
-    };
+    let metrics: Vec<f64> = frames.iter().map(|f| f.blur).collect();
+    let min_blur = blur_threshold(&metrics, cfg.blur_sigmas).unwrap_or(f64::NEG_INFINITY);
     let cap = (need.values().sum::<usize>()).min(MAX_ADDED);
     let (chosen, passes) = choose(&sightings, &need, min_blur, PASS_GAP, cap);
 

@@ -426,7 +426,11 @@ pub fn align(
             hunted = found;
             (frames, true, Some(decoding))
         }
-        (None, Some(d)) => (frames::read_photos(d, cfg, dict, progress)?, false, None),
+        (None, Some(d)) => {
+            let frames = frames::read_photos(d, cfg, dict, progress)?;
+            timer.lap("decode + features");
+            (frames, false, None)
+        }
         _ => {
             return Err(AlignError::invalid(
                 "frame input",
@@ -435,9 +439,6 @@ pub fn align(
             ))
         }
     };
-    if !ordered {
-        timer.lap("decode + features");
-    }
     let mut trace = trace::AlignTrace::default();
     trace.add_frames(&decoded);
     if let Some(h) = &hunted {

@@ -69,9 +69,7 @@ pub struct Registration {
     pub coarse_tested: usize,
     /// Fine pairs used.
     pub fine_pairs: usize,
-    /// Frames anchored by reference matches.
-    pub reference_anchored: usize,
-    /// Those frames, as (stream, frame number).
+    /// Frames anchored by reference matches, as (stream, frame number).
     pub reference_tied: BTreeSet<(u32, u64)>,
     /// Frames with markers.
     pub with_markers: usize,
@@ -383,13 +381,13 @@ pub fn register(
         })
         .collect();
     let with_markers = marker_anchors.iter().filter(|a| !a.is_empty()).count();
-    let reference_anchored = anchors.iter().filter(|a| !a.is_empty()).count();
     let reference_tied: BTreeSet<(u32, u64)> = frames
         .iter()
         .zip(&anchors)
         .filter(|(_, a)| !a.is_empty())
         .map(|(f, _)| (f.stream, f.index))
         .collect();
+    let reference_anchored = reference_tied.len();
 
     // Initial plane_from_pixel homography per frame: from its own absolute anchors,
     // else propagated from a neighbour through the pairwise homography.
@@ -775,7 +773,6 @@ pub fn register(
         verified_pairs,
         coarse_tested,
         fine_pairs,
-        reference_anchored,
         reference_tied,
         with_markers,
         pieces,

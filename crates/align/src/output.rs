@@ -595,7 +595,7 @@ pub fn write(
         coarse_pairs_tested: reg.coarse_tested,
         connected_pairs: reg.connectivity.kept.len(),
         fine_pairs: reg.fine_pairs,
-        reference_anchored: reg.reference_anchored,
+        reference_anchored: reg.reference_tied.len(),
         frames_with_markers: reg.with_markers,
         pieces: reg.pieces,
         per_frame_anchors: reg.per_frame_anchors.clone(),

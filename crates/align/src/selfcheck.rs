@@ -101,8 +101,8 @@ pub struct FrameCheck {
     /// Matched blocks that agree with that affine field.
     #[serde(default)]
     pub warp_agreeing: usize,
-    /// Every matched block: its centre on the comparison grid (cm from the region's
-    /// lower corner) and its displacement from the reference photo (mm), as
+    /// Every matched block: its centre on the plane (world cm) and where the reference
+    /// photo shows its texture relative to it (world axes, mm), as
     /// `[x_cm, y_cm, dx_mm, dy_mm]`.
     #[serde(default)]
     pub block_shifts: Vec<[f64; 4]>,
@@ -356,7 +356,18 @@ pub fn check(
                     .plane_to_pixel(q)
                     .map(|p| Vec2::new((p.x + 0.5) * s - 0.5, (p.y + 0.5) * s - 0.5))
             });
-            check_frame(k, f, &fine, &ref_fine, &ref_coarse)
+            let mut c = check_frame(k, f, &fine, &ref_fine, &ref_coarse);
+            // Grid cells (rows downwards from the region's top edge) to world axes; the
+            // warp's affine field is the same field in either.
+            for b in &mut c.block_shifts {
+                *b = [
+                    grid.region.x_min + b[0],
+                    grid.region.y_max - b[1],
+                    b[2],
+                    -b[3],
+                ];
+            }
+            c
         })
         .collect()
 }
@@ -464,11 +475,10 @@ fn check_frame(
 /// when it has fewer than a third of the matched blocks (or fewer than 2): the frame
 /// is then unverified, not inconsistent.
 fn consensus(shifts: &[(f64, f64)]) -> (Option<f64>, usize) {
-    let close = agree;
     let Some(best) = shifts
         .iter()
         .map(|&a| {
-            let support = shifts.iter().filter(|&&b| close(a, b)).count();
+            let support = shifts.iter().filter(|&&b| agree(a, b)).count();
             (support, a)
         })
         .max_by(|x, y| {
@@ -481,7 +491,7 @@ fn consensus(shifts: &[(f64, f64)]) -> (Option<f64>, usize) {
     };
     let mut xs: Vec<f64> = Vec::new();
     let mut ys: Vec<f64> = Vec::new();
-    for &b in shifts.iter().filter(|&&b| close(best, b)) {
+    for &b in shifts.iter().filter(|&&b| agree(best, b)) {
         xs.push(b.0);
         ys.push(b.1);
     }
@@ -550,12 +560,8 @@ fn warp(blocks: &[[f64; 4]], shift_agreeing: usize) -> (Option<f64>, usize) {
     }
     // At most 40 blocks propose fields (about 10,000 triples), all of them vote.
     let m = n.min(40);
-    let inliers = |f: &Affine| -> Vec<&[f64; 4]> {
-        blocks
-            .iter()
-            .filter(|b| agree((b[2], b[3]), apply(f, b[0], b[1])))
-            .collect()
-    };
+    let fits = |f: &Affine, b: &[f64; 4]| agree((b[2], b[3]), apply(f, b[0], b[1]));
+    let inliers = |f: &Affine| -> Vec<&[f64; 4]> { blocks.iter().filter(|b| fits(f, b)).collect() };
     let mut best: Option<(usize, Affine)> = None;
     for i in 0..m {
         for j in i + 1..m {
@@ -563,7 +569,7 @@ fn warp(blocks: &[[f64; 4]], shift_agreeing: usize) -> (Option<f64>, usize) {
                 let Some(f) = fit_affine(&[&blocks[i], &blocks[j], &blocks[k]]) else {
                     continue;
                 };
-                let c = inliers(&f).len();
+                let c = blocks.iter().filter(|b| fits(&f, b)).count();
                 if best.is_none_or(|(b, _)| c > b) {
                     best = Some((c, f));
                 }
