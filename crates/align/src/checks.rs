@@ -185,6 +185,18 @@ pub(crate) fn apply_self_check(
         "{what}; these frames were dropped (self-check against the reference photo)"
     ));
     let drop: std::collections::HashSet<usize> = bad.iter().map(|c| c.kept_index).collect();
+    let _ = remove_frames(reg, &drop, |d, n| d.inconsistent += n);
+    Ok(())
+}
+
+/// Remove the kept frames whose kept index is in `drop` from `reg`, counting them in
+/// its frame accounting with `count` (per stream) and taking them off `kept`. Returns
+/// the new kept index of every old one (`None`: removed).
+pub(crate) fn remove_frames(
+    reg: &mut matching::Registration,
+    drop: &std::collections::HashSet<usize>,
+    count: impl Fn(&mut crate::DropCounts, usize),
+) -> impl Fn(usize) -> Option<usize> {
     fn retain_kept<T>(v: &mut Vec<T>, drop: &std::collections::HashSet<usize>) {
         let mut i = 0;
         v.retain(|_| {
@@ -192,19 +204,31 @@ pub(crate) fn apply_self_check(
             !drop.contains(&(i - 1))
         });
     }
-    retain_kept(&mut reg.frames, &drop);
-    retain_kept(&mut reg.mappings, &drop);
-    retain_kept(&mut reg.poses, &drop);
-    retain_kept(&mut reg.lights, &drop);
-    let flash_dropped = bad.iter().filter(|c| c.stream == 0).count();
-    reg.drops.inconsistent += flash_dropped;
+    let flash_dropped = drop
+        .iter()
+        .filter(|&&k| reg.frames.get(k).is_some_and(|f| f.stream == 0))
+        .count();
+    let second_dropped = drop.iter().filter(|&&k| k < reg.frames.len()).count() - flash_dropped;
+    let n = reg.frames.len();
+    retain_kept(&mut reg.frames, drop);
+    retain_kept(&mut reg.mappings, drop);
+    retain_kept(&mut reg.poses, drop);
+    retain_kept(&mut reg.lights, drop);
+    count(&mut reg.drops, flash_dropped);
     reg.drops.kept -= flash_dropped.min(reg.drops.kept);
     if let Some(d) = &mut reg.second_drops {
-        let n = bad.len() - flash_dropped;
-        d.inconsistent += n;
-        d.kept -= n.min(d.kept);
+        count(d, second_dropped);
+        d.kept -= second_dropped.min(d.kept);
     }
-    Ok(())
+    let mut map = vec![None; n];
+    let mut next = 0;
+    for (k, m) in map.iter_mut().enumerate() {
+        if !drop.contains(&k) {
+            *m = Some(next);
+            next += 1;
+        }
+    }
+    move |k| map.get(k).copied().flatten()
 }
 
 /// Refuse a registration most of whose flash frames nothing independent of the chains
@@ -231,17 +255,17 @@ pub(crate) fn require_confirmation(
         .filter(|f| f.stream == 0)
         .map(|f| (f.stream, f.index))
         .collect();
-    let tied = flash
-        .iter()
-        .filter(|f| reg.reference_tied.contains(f))
-        .count();
+    // Matched with the reference photo: by features, or at full resolution from
+    // where plane ties placed the frame.
+    let is_tied = |f: &(u32, u64)| reg.reference_tied.contains(f) || reg.plane_tied.contains(f);
+    let tied = flash.iter().filter(|f| is_tied(f)).count();
     let checked = flash
         .iter()
-        .filter(|f| !reg.reference_tied.contains(f) && verified.contains(f))
+        .filter(|f| !is_tied(f) && verified.contains(f))
         .count();
     let unconfirmed: Vec<u64> = flash
         .iter()
-        .filter(|f| !reg.reference_tied.contains(f) && !verified.contains(f))
+        .filter(|f| !is_tied(f) && !verified.contains(f))
         .map(|f| f.1)
         .collect();
     if unconfirmed.len() * 2 <= flash.len() {

@@ -69,6 +69,11 @@ pub struct AlignConfig {
     pub sift_contrast: f64,
     /// Match every frame against the reference photo for absolute constraints.
     pub match_reference: bool,
+    /// Tie frames without reference-photo matches of their own to the plane by the
+    /// blocks the self-check matched with the reference photo, and solve again
+    /// (`ties`); needs the self-check.
+    #[serde(default = "default_true")]
+    pub plane_ties: bool,
     /// The check of every kept frame against the reference photo after the solve.
     #[serde(default)]
     pub self_check: crate::selfcheck::SelfCheckConfig,
@@ -147,6 +152,7 @@ impl Default for AlignConfig {
             subframes: None,
             sift_contrast: 0.02,
             match_reference: true,
+            plane_ties: true,
             self_check: crate::selfcheck::SelfCheckConfig::default(),
             reference_weight: 1.0,
             overlap_weight: 4.0,
@@ -170,6 +176,10 @@ impl Default for AlignConfig {
 
 fn default_max_noise_gain() -> f64 {
     4.0
+}
+
+fn default_true() -> bool {
+    true
 }
 
 fn default_marker_views() -> u32 {

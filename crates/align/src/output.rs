@@ -618,6 +618,7 @@ pub fn write(
         exposure: Some(exposure),
         support: reg.support.clone(),
         marker_hunt: reg.marker_hunt.clone(),
+        plane_ties: reg.plane_ties.clone(),
     };
     #[derive(serde::Serialize)]
     struct Record<'a> {

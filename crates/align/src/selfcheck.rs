@@ -441,30 +441,46 @@ fn check_frame(
         v.sort_by(f64::total_cmp);
         (!v.is_empty()).then(|| v[v.len() / 2])
     };
-    let max = shifts
-        .iter()
-        .map(|s| s.0.hypot(s.1))
-        .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
-    let (shift, agreeing) = consensus(&shifts);
     let blocks_mm: Vec<[f64; 4]> = centres
         .iter()
         .zip(&shifts)
         .map(|(c, s)| [c.0, c.1, s.0, s.1])
         .collect();
-    let (warp_mm, warp_agreeing) = warp(&blocks_mm, agreeing);
+    let mut c = summarise(k, f.frame, f.stream, blocks, blocks_mm);
+    c.score = median(&mut scores);
+    c
+}
+
+/// The check of a frame (`kept_index`, video `frame`, `stream`) from the blocks
+/// compared (`blocks`) and those that matched clearly (`[x, y, dx_mm, dy_mm]`): the
+/// displacement they agree on, as a shift or as an affine field (no score).
+pub(crate) fn summarise(
+    kept_index: usize,
+    frame: u64,
+    stream: u32,
+    blocks: usize,
+    matched: Vec<[f64; 4]>,
+) -> FrameCheck {
+    let shifts: Vec<(f64, f64)> = matched.iter().map(|b| (b[2], b[3])).collect();
+    let max = shifts
+        .iter()
+        .map(|s| s.0.hypot(s.1))
+        .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
+    let (shift, agreeing) = consensus(&shifts);
+    let (warp_mm, warp_agreeing) = warp(&matched, agreeing);
     FrameCheck {
-        kept_index: k,
-        frame: f.frame,
-        stream: f.stream,
+        kept_index,
+        frame,
+        stream,
         blocks,
         matched: shifts.len(),
         agreeing,
         shift_mm: shift,
         max_shift_mm: max,
-        score: median(&mut scores),
+        score: None,
         warp_mm,
         warp_agreeing,
-        block_shifts: blocks_mm,
+        block_shifts: matched,
     }
 }
 
@@ -475,6 +491,17 @@ fn check_frame(
 /// when it has fewer than a third of the matched blocks (or fewer than 2): the frame
 /// is then unverified, not inconsistent.
 fn consensus(shifts: &[(f64, f64)]) -> (Option<f64>, usize) {
+    let (best, members) = consensus_group(shifts);
+    let agreeing = members.len();
+    match best {
+        Some(b) if agreeing >= 2.max(shifts.len().div_ceil(3)) => (Some(b.0.hypot(b.1)), agreeing),
+        _ => (None, agreeing),
+    }
+}
+
+/// The largest group of agreeing displacements: its median displacement (mm; `None`
+/// without displacements) and its members' indices.
+fn consensus_group(shifts: &[(f64, f64)]) -> (Option<(f64, f64)>, Vec<usize>) {
     let Some(best) = shifts
         .iter()
         .map(|&a| {
@@ -487,22 +514,38 @@ fn consensus(shifts: &[(f64, f64)]) -> (Option<f64>, usize) {
         })
         .map(|(_, a)| a)
     else {
-        return (None, 0);
+        return (None, Vec::new());
     };
-    let mut xs: Vec<f64> = Vec::new();
-    let mut ys: Vec<f64> = Vec::new();
-    for &b in shifts.iter().filter(|&&b| agree(best, b)) {
-        xs.push(b.0);
-        ys.push(b.1);
-    }
-    let agreeing = xs.len();
-    if agreeing < 2.max(shifts.len().div_ceil(3)) {
-        return (None, agreeing);
-    }
+    let members: Vec<usize> = (0..shifts.len())
+        .filter(|&k| agree(best, shifts[k]))
+        .collect();
+    let mut xs: Vec<f64> = members.iter().map(|&k| shifts[k].0).collect();
+    let mut ys: Vec<f64> = members.iter().map(|&k| shifts[k].1).collect();
     xs.sort_by(f64::total_cmp);
     ys.sort_by(f64::total_cmp);
-    let (mx, my) = (xs[xs.len() / 2], ys[ys.len() / 2]);
-    (Some(mx.hypot(my)), agreeing)
+    (Some((xs[xs.len() / 2], ys[ys.len() / 2])), members)
+}
+
+/// The matched blocks of a checked frame that agree with its displacement from the
+/// reference photo (`[x_cm, y_cm, dx_mm, dy_mm]`, as `block_shifts`): those of the
+/// affine field where the frame is bent ([`warp`]), else those of the largest group
+/// agreeing on one shift where that group verifies the frame; none for an unverified
+/// frame. Blocks matched by a highlight or one repeat off point elsewhere and are not
+/// among them.
+pub fn agreeing_blocks(c: &FrameCheck) -> Vec<[f64; 4]> {
+    let shifts: Vec<(f64, f64)> = c.block_shifts.iter().map(|b| (b[2], b[3])).collect();
+    let (shift, members) = consensus_group(&shifts);
+    if c.warp_mm.is_some() {
+        if let Ok((_, group)) = warp_field(&c.block_shifts, members.len()) {
+            return group.into_iter().map(|k| c.block_shifts[k]).collect();
+        }
+    }
+    match shift {
+        Some(_) if members.len() >= 2.max(shifts.len().div_ceil(3)) => {
+            members.into_iter().map(|k| c.block_shifts[k]).collect()
+        }
+        _ => Vec::new(),
+    }
 }
 
 /// Whether two displacements agree (mm): within 0.5 mm or a quarter of the first.
@@ -554,14 +597,33 @@ fn fit_affine(blocks: &[&[f64; 4]]) -> Option<Affine> {
 /// highlight or a repeat point every which way, and no field gathers them. Returns
 /// the 75th percentile of the field's length over its blocks (mm) and their count.
 fn warp(blocks: &[[f64; 4]], shift_agreeing: usize) -> (Option<f64>, usize) {
+    match warp_field(blocks, shift_agreeing) {
+        Ok((f, group)) => {
+            let mut len: Vec<f64> = group
+                .iter()
+                .map(|&k| {
+                    let d = apply(&f, blocks[k][0], blocks[k][1]);
+                    d.0.hypot(d.1)
+                })
+                .collect();
+            len.sort_by(f64::total_cmp);
+            (Some(len[(3 * len.len()) / 4]), group.len())
+        }
+        Err(count) => (None, count),
+    }
+}
+
+/// The affine field of [`warp`] and the indices of the blocks agreeing with it, or
+/// (`Err`) how many agreed with the best field where it does not count.
+fn warp_field(blocks: &[[f64; 4]], shift_agreeing: usize) -> Result<(Affine, Vec<usize>), usize> {
     let n = blocks.len();
     if n < WARP_MIN_BLOCKS {
-        return (None, 0);
+        return Err(0);
     }
     // At most 40 blocks propose fields (about 10,000 triples), all of them vote.
     let m = n.min(40);
     let fits = |f: &Affine, b: &[f64; 4]| agree((b[2], b[3]), apply(f, b[0], b[1]));
-    let inliers = |f: &Affine| -> Vec<&[f64; 4]> { blocks.iter().filter(|b| fits(f, b)).collect() };
+    let inliers = |f: &Affine| -> Vec<usize> { (0..n).filter(|&k| fits(f, &blocks[k])).collect() };
     let mut best: Option<(usize, Affine)> = None;
     for i in 0..m {
         for j in i + 1..m {
@@ -577,27 +639,19 @@ fn warp(blocks: &[[f64; 4]], shift_agreeing: usize) -> (Option<f64>, usize) {
         }
     }
     let Some((_, f)) = best else {
-        return (None, 0);
+        return Err(0);
     };
-    let group = inliers(&f);
+    let group: Vec<&[f64; 4]> = inliers(&f).into_iter().map(|k| &blocks[k]).collect();
     let Some(f) = fit_affine(&group) else {
-        return (None, 0);
+        return Err(0);
     };
     let group = inliers(&f);
     let count = group.len();
     let margin = n.div_ceil(4).max(2);
     if count < WARP_MIN_BLOCKS || 2 * count < n || count < shift_agreeing + margin {
-        return (None, count);
+        return Err(count);
     }
-    let mut len: Vec<f64> = group
-        .iter()
-        .map(|b| {
-            let d = apply(&f, b[0], b[1]);
-            d.0.hypot(d.1)
-        })
-        .collect();
-    len.sort_by(f64::total_cmp);
-    (Some(len[(3 * len.len()) / 4]), count)
+    Ok((f, group))
 }
 
 /// How many frames the check verified (their offset is known), and the largest offset

@@ -25,6 +25,8 @@ pub enum Fate {
     Outside,
     /// Dropped by the self-check against the reference photo.
     Inconsistent,
+    /// Registered with plane ties, but not confirmed by the reference photo's texture.
+    Unconfirmed,
     /// Alignment stopped before this frame's fate was decided.
     NotReached,
 }
@@ -39,6 +41,7 @@ impl Fate {
             Self::Unsupported => "mostly extrapolated",
             Self::Outside => "outside",
             Self::Inconsistent => "inconsistent",
+            Self::Unconfirmed => "unconfirmed",
             Self::NotReached => "not reached",
         }
     }
@@ -137,6 +140,7 @@ impl AlignTrace {
             Fate::Unsupported,
             Fate::Outside,
             Fate::Inconsistent,
+            Fate::Unconfirmed,
             Fate::NotReached,
         ];
         let flash: Vec<&FrameTrace> = self.per_frame.iter().filter(|t| t.stream == 0).collect();

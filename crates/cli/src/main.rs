@@ -266,6 +266,10 @@ struct AlignArgs {
     /// matched, e.g. under very different light).
     #[arg(long)]
     no_reference_matches: bool,
+    /// Do not tie frames without reference-photo matches of their own to the plane by
+    /// the blocks the self-check matched with the reference photo (a diagnostic)
+    #[arg(long)]
+    no_plane_ties: bool,
     #[command(flatten)]
     second: SecondArgs,
     /// Replace the output folder if it exists.
@@ -336,6 +340,9 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
     }
     if a.no_reference_matches {
         c.match_reference = false;
+    }
+    if a.no_plane_ties {
+        c.plane_ties = false;
     }
 
     if let Some(v) = a.fine_features {
@@ -488,6 +495,9 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     }
     if let Some(h) = &s.marker_hunt {
         say!("{}", h.describe());
+    }
+    if let Some(t) = &s.plane_ties {
+        say!("{}", t.describe());
     }
     if let Some(line) = s.support.describe() {
         say!("support: {line}");

@@ -325,6 +325,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         sharpest_within: None,
         marker_views: None,
         no_reference_matches: false,
+        no_plane_ties: false,
         second: a.second.clone(),
         overwrite: true,
     };
