@@ -718,7 +718,7 @@ pub fn ranges(frames: &[u64]) -> String {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
 
     fn plane(w: usize, h: usize, f: impl Fn(usize, usize) -> [f32; 3]) -> PlaneImage {
@@ -918,7 +918,8 @@ mod tests {
     }
 
     /// Blocks on a 2 cm lattice of a 10 x 18 cm frame, displaced by `d(x, y)` mm.
-    fn lattice(d: impl Fn(f64, f64) -> (f64, f64)) -> Vec<[f64; 4]> {
+    /// Blocks `[x_cm, y_cm, dx_mm, dy_mm]` on a 4 x 8 lattice, displaced by `d`.
+    pub(crate) fn lattice(d: impl Fn(f64, f64) -> (f64, f64)) -> Vec<[f64; 4]> {
         let mut v = Vec::new();
         for j in 0..8 {
             for i in 0..4 {

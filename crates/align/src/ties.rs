@@ -281,19 +281,7 @@ mod tests {
     use svbrdf_cv::features::Features;
 
     use super::*;
-
-    /// Blocks `[x_cm, y_cm, dx_mm, dy_mm]` on a 4 x 8 lattice, displaced by `d`.
-    fn lattice(d: impl Fn(f64, f64) -> (f64, f64)) -> Vec<[f64; 4]> {
-        let mut v = Vec::new();
-        for j in 0..8 {
-            for i in 0..4 {
-                let (x, y) = (2.0 + 2.0 * f64::from(i), 2.0 + 2.0 * f64::from(j));
-                let (dx, dy) = d(x, y);
-                v.push([x, y, dx, dy]);
-            }
-        }
-        v
-    }
+    use crate::selfcheck::tests::lattice;
 
     fn checked(blocks: Vec<[f64; 4]>) -> FrameCheck {
         // What the self-check writes for these blocks.
@@ -428,7 +416,11 @@ mod tests {
         assert!(m.confirms(), "{} of {}", m.verified, m.tried);
         assert!(m.verified > 300, "{}", m.verified);
         let m = m.matches;
-        assert!(m.len() <= MAX_GUIDED && m.len() > MAX_GUIDED / 2, "{}", m.len());
+        assert!(
+            m.len() <= MAX_GUIDED && m.len() > MAX_GUIDED / 2,
+            "{}",
+            m.len()
+        );
         let mut err: Vec<f64> = m.iter().map(|(p, x)| (truth(*p) - x).norm()).collect();
         err.sort_by(f64::total_cmp);
         // The map was off by 0.042 cm (0.42 reference px).
