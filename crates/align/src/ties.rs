@@ -20,7 +20,7 @@ use svbrdf_cv::features::{estimate_homography, Robust};
 
 use crate::coarse::pts;
 use crate::config::AlignConfig;
-use crate::fine::{fine_min, patch_settings, refine_matches};
+use crate::fine::{fine_min, patch_settings, refine_matches, to_grey};
 use crate::frames::FrameData;
 use crate::matching::{PlaneTies, Registration};
 use crate::patch::Grey;
@@ -29,11 +29,10 @@ use crate::AlignError;
 
 /// A frame needs this many agreeing blocks to be tied.
 pub const MIN_TIE_BLOCKS: usize = 4;
-/// The solve runs again only where a frame to be tied lies at least this far from the
-/// reference photo, mm: closer, the ties would change nothing that matters.
+/// Block ties are used only where a frame to be tied lies at least this far from the
+/// reference photo, mm: closer, the full-resolution matcher finds the texture from
+/// where the frame lies.
 pub const TIE_TRIGGER_MM: f64 = 0.25;
-/// Solves with plane ties at most (each followed by a self-check).
-pub const MAX_TIE_ROUNDS: usize = 2;
 /// A frame placed by plane ties is confirmed where the patch matcher finds the
 /// reference photo's texture at this share of its features at least.
 pub const GUIDED_MIN_SHARE: f64 = 0.5;
@@ -48,10 +47,16 @@ pub const BLOCK_TIE_WEIGHT: f64 = 16.0;
 pub struct PlaneTieSummary {
     /// Solves run again with plane ties.
     pub rounds: usize,
+    /// Kept frames without reference-photo feature matches of their own.
+    #[serde(default)]
+    pub untied: usize,
     /// Frames tied (video frame numbers of the flash stream; second-stream frames are
     /// counted in `ties` only).
     pub frames: Vec<u64>,
-    /// Block anchors in the last round.
+    /// Frames that got block ties first (lying over [`TIE_TRIGGER_MM`] off).
+    #[serde(default)]
+    pub block_frames: usize,
+    /// Block anchors.
     pub ties: usize,
     /// Frames matched with the reference photo at full resolution from where the
     /// block ties placed them (their block anchors then give way to these matches).
@@ -75,13 +80,14 @@ impl PlaneTieSummary {
     /// One line for the summary.
     pub fn describe(&self) -> String {
         format!(
-            "plane ties: {} frames without reference-photo matches of their own tied by {} blocks matched with the reference photo on the plane, solved again {} time(s); {} frames then confirmed by {} full-resolution matches with it, {} left out unconfirmed; largest offset of the tied frames {:.2} -> {:.2} mm",
-            self.frames.len(),
+            "plane ties: {} frames without reference-photo feature matches of their own; {} of them first tied by {} blocks matched with the reference photo on the plane; {} confirmed by {} full-resolution matches with it, {} left out unconfirmed; solved again {} time(s); largest self-check offset of the tied frames {:.2} -> {:.2} mm",
+            self.untied,
+            self.block_frames,
             self.ties,
-            self.rounds,
             self.guided_frames,
             self.guided_matches,
             self.unconfirmed.len(),
+            self.rounds,
             self.offset_before_mm,
             self.offset_after_mm
         )
@@ -126,6 +132,40 @@ pub(crate) fn ties_from_checks(
         }
     }
     (ties, largest)
+}
+
+/// Smallest ratio of the structure tensor's eigenvalues (weaker over stronger
+/// gradient direction) over a patch for the full-resolution matcher to use it.
+pub const MIN_TWO_DIMENSIONALITY: f64 = 0.2;
+
+/// Whether the patch of radius `r` around `c` (patch-image pixels) has gradients in
+/// two directions: the smaller eigenvalue of its structure tensor at least
+/// [`MIN_TWO_DIMENSIONALITY`] of the larger one (and some gradient at all).
+fn two_dimensional(g: &Grey, c: Vec2, r: usize) -> bool {
+    let (cx, cy) = (c.x.round() as i64, c.y.round() as i64);
+    let r = r as i64;
+    if cx - r - 1 < 0
+        || cy - r - 1 < 0
+        || cx + r + 1 >= g.width as i64
+        || cy + r + 1 >= g.height as i64
+    {
+        return false;
+    }
+    let at = |x: i64, y: i64| f64::from(g.data[y as usize * g.width + x as usize]);
+    let (mut xx, mut xy, mut yy) = (0.0, 0.0, 0.0);
+    for y in cy - r..=cy + r {
+        for x in cx - r..=cx + r {
+            let gx = at(x + 1, y) - at(x - 1, y);
+            let gy = at(x, y + 1) - at(x, y - 1);
+            xx += gx * gx;
+            xy += gx * gy;
+            yy += gy * gy;
+        }
+    }
+    let half_trace = 0.5 * (xx + yy);
+    let root = (0.25 * (xx - yy).powi(2) + xy * xy).sqrt();
+    let (lo, hi) = (half_trace - root, half_trace + root);
+    hi > 1e-9 && lo >= MIN_TWO_DIMENSIONALITY * hi
 }
 
 /// What [`guided_matches`] found for one frame.
@@ -191,6 +231,7 @@ pub(crate) fn guided_matches(
             && q.x < reference.width as f64 - margin
             && q.y < reference.height as f64 - margin
     };
+    let s_grey = grey.width as f64 / f64::from(f.width);
     let points = pts(&f.coarse, 0..f.coarse.points.len() as u32);
     // Group the features by the sub-frame that maps them: one map per group.
     let mut groups: Vec<Vec<(Vec2, Vec2)>> = vec![Vec::new(); blocks.len()];
@@ -208,7 +249,9 @@ pub(crate) fn guided_matches(
         else {
             continue;
         };
-        if inside(q) {
+        // Only texture that fixes a position in both directions: on streaks (brushed
+        // metal) the patch slides along them and "confirms" wherever the map put it.
+        if inside(q) && two_dimensional(grey, to_grey(p, s_grey), settings.radius) {
             groups[b].push((p, q));
         }
     }
