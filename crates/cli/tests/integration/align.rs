@@ -526,11 +526,22 @@ fn refusal_is_recorded_frame_by_frame(cap: &Path, out: &Path, err: &str) {
 /// such a run succeeded with frames 12 mm off and the self-check unable to verify a
 /// single frame; now it is refused in one line naming the unconfirmed frames, while
 /// the same capture aligned with the reference photo's matches is registered right.
+/// With plane ties (the default), frames the self-check cannot place are not
+/// confirmed either: refused, or registered right.
 #[test]
 fn markers_alone_do_not_confirm_a_registration() {
     let cap = tiny_brushed_metal("brushed-ward", "ward");
-    let out = temp_dir().join("markers-only");
+    let out = temp_dir().join("markers-and-ties");
     let o = align(&cap, &out, &["--no-reference-matches"]);
+    if o.status.success() {
+        let v = alignment_accuracy(out.as_path(), &cap);
+        assert!(v["worst_frame_px_p95"].as_f64().unwrap() < 1.0, "{v}");
+    } else {
+        let err = stderr(&o);
+        assert_eq!(err.matches("error:").count(), 1, "{err}");
+    }
+    let out = temp_dir().join("markers-only");
+    let o = align(&cap, &out, &["--no-reference-matches", "--no-plane-ties"]);
     let err = stderr(&o);
     if o.status.success() {
         // Should it ever succeed, it must be right.
