@@ -42,7 +42,6 @@ pub mod trace;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
 
-use rayon::prelude::*;
 use svbrdf_core::CoreError;
 use svbrdf_cv::CvError;
 
@@ -562,14 +561,14 @@ fn register_and_write(
         let mut checks = self_check(&result, ref_img, reference, region)?;
         timer.lap("self-check");
         if cfg.plane_ties {
-            let (tied, c) = tie_to_plane(
+            let (tied, c) = ties::tie_to_plane(
                 &matched,
                 result,
                 checks,
                 (ref_img, reference, region),
                 cfg,
                 progress,
-                timer,
+                &mut |n| timer.lap(n),
                 trace,
             )?;
             result = tied;
@@ -656,176 +655,6 @@ fn register_and_write(
         decoding,
         progress,
     )
-}
-
-/// Plane ties (`ties`), where kept frames have no reference-photo feature matches of
-/// their own: those lying off the reference photo by blocks that agree are solved
-/// again with the blocks as anchors; then every such frame is matched with the
-/// reference photo at full resolution from where it lies, solved again with those
-/// matches, and the frames they do not confirm are left out. Returns the
-/// registration and its self-check (unchanged where every frame has feature matches).
-#[allow(clippy::too_many_arguments)]
-fn tie_to_plane(
-    matched: &matching::Matched,
-    mut result: matching::Registration,
-    mut checks: Vec<selfcheck::FrameCheck>,
-    (ref_img, reference, region): (
-        &svbrdf_core::image::ImageU8,
-        &reference::ReferenceFrame,
-        svbrdf_core::plane::Region,
-    ),
-    cfg: &AlignConfig,
-    progress: &dyn Progress,
-    timer: &mut Timer,
-    trace: &mut trace::AlignTrace,
-) -> Result<(matching::Registration, Vec<selfcheck::FrameCheck>), AlignError> {
-    let is_untied = |r: &matching::Registration, f: &FrameData| {
-        !r.reference_tied.contains(&(f.stream, f.index))
-    };
-    if !result.frames.iter().any(|f| is_untied(&result, f)) {
-        for f in &mut result.frames {
-            f.grey = None;
-        }
-        return Ok((result, checks));
-    }
-    let mut all = matching::PlaneTies::new();
-    let mut summary = ties::PlaneTieSummary::default();
-    let mut confirmed = std::collections::BTreeSet::new();
-    let mut solve_again = |all: &matching::PlaneTies,
-                           result: &mut matching::Registration,
-                           checks: &mut Vec<selfcheck::FrameCheck>,
-                           timer: &mut Timer|
-     -> Result<(), AlignError> {
-        let mut again = matched.solve(all, cfg, progress, &mut |n| timer.lap(n), trace)?;
-        again.marker_hunt = result.marker_hunt.take();
-        *result = again;
-        *checks = self_check(result, ref_img, reference, region)?;
-        timer.lap("self-check");
-        Ok(())
-    };
-    // Frames far off first get block ties: the full-resolution matcher searches a few
-    // pixels around where a frame's map puts the reference photo's texture.
-    let mappings = checks::prepared_mappings(&result)?;
-    let (blocks, largest) = ties::ties_from_checks(&result, &checks, &|k, x| {
-        mappings.get(k).and_then(|m| m.plane_to_pixel(x))
-    });
-    summary.offset_before_mm = largest;
-    summary.untied = result
-        .frames
-        .iter()
-        .filter(|f| is_untied(&result, f))
-        .count();
-    if !blocks.is_empty() && largest >= ties::TIE_TRIGGER_MM {
-        summary.ties = blocks.values().map(Vec::len).sum();
-        summary.block_frames = blocks.len();
-        all = blocks;
-        solve_again(&all, &mut result, &mut checks, timer)?;
-        summary.rounds += 1;
-    }
-    // Every frame without feature matches of its own is matched with the reference
-    // photo at full resolution from where it now lies; where that confirms it, those
-    // matches replace its block ties.
-    let grey = patch::Grey::from_image(ref_img);
-    let cm_per_px = matched.cm_per_px;
-    // Only frames the self-check placed (their blocks agreed with the reference photo,
-    // before or after block ties): the matcher searches a few pixels around where a
-    // frame's map puts the texture, and a frame placed wrong on texture that matches
-    // in streaks is "confirmed" there (tiny brushed metal, markers only: 12 frames
-    // confirmed 4 mm off).
-    let placed: std::collections::BTreeSet<(u32, u64)> = checks
-        .iter()
-        .filter(|c| c.offset_mm().is_some())
-        .map(|c| (c.stream, c.frame))
-        .collect();
-    let guided: Vec<((u32, u64), ties::Guided)> = result
-        .frames
-        .par_iter()
-        .zip(&result.mappings)
-        .filter(|(f, _)| is_untied(&result, f) && placed.contains(&(f.stream, f.index)))
-        .map(|(f, blocks)| {
-            let thr_px = cfg.fine_inlier_px * f64::from(f.width.max(f.height)) / 3840.0;
-            let m = ties::guided_matches(
-                f,
-                blocks,
-                (&grey, &reference.plane_from_pixel),
-                cfg,
-                thr_px * cm_per_px,
-            )?;
-            Ok(((f.stream, f.index), m))
-        })
-        .collect::<Result<_, AlignError>>()?;
-    timer.lap("plane ties: matching");
-    for (key, g) in guided {
-        if !g.confirms() {
-            continue;
-        }
-        summary.guided_frames += 1;
-        summary.guided_matches += g.matches.len();
-        confirmed.insert(key);
-        all.insert(
-            key,
-            g.matches
-                .into_iter()
-                .map(|(p, x)| (p, x, cfg.reference_weight))
-                .collect(),
-        );
-    }
-    if !confirmed.is_empty() {
-        solve_again(&all, &mut result, &mut checks, timer)?;
-        summary.rounds += 1;
-    }
-    {
-        let kept: std::collections::HashMap<(u32, u64), usize> = result
-            .frames
-            .iter()
-            .enumerate()
-            .map(|(k, f)| ((f.stream, f.index), k))
-            .collect();
-        summary.frames = all.keys().filter(|k| k.0 == 0).map(|k| k.1).collect();
-        summary.offset_after_mm = all
-            .keys()
-            .filter_map(|k| kept.get(k))
-            .filter_map(|&k| checks.get(k).and_then(|c| c.offset_mm()))
-            .fold(0.0, f64::max);
-        // A registration that needed plane ties keeps only frames that the reference
-        // photo confirms: by feature matches of their own, or by full-resolution
-        // matches over at least half of the frame from where the ties placed it.
-        // Measured (hard-small, markers alone): frames tied by blocks only, or whose
-        // full-resolution matches held under half of their features, were 1-5 mm off
-        // at their 95th percentile in places no block had matched.
-        let drop: std::collections::HashSet<usize> = result
-            .frames
-            .iter()
-            .enumerate()
-            .filter(|(_, f)| {
-                let key = (f.stream, f.index);
-                !result.reference_tied.contains(&key) && !confirmed.contains(&key)
-            })
-            .map(|(k, _)| k)
-            .collect();
-        for f in result.frames.iter().filter(|f| {
-            let key = (f.stream, f.index);
-            !result.reference_tied.contains(&key) && !confirmed.contains(&key)
-        }) {
-            trace.set_fate(f, trace::Fate::Unconfirmed);
-            summary.unconfirmed.push(f.index);
-        }
-        let renumber = checks::remove_frames(&mut result, &drop, |d, n| d.unconfirmed += n);
-        checks = checks
-            .into_iter()
-            .filter_map(|mut c| {
-                c.kept_index = renumber(c.kept_index)?;
-                Some(c)
-            })
-            .collect();
-        result.plane_tied = confirmed;
-        result.plane_ties = Some(summary);
-    }
-    // The patch images kept for this are not needed any more.
-    for f in &mut result.frames {
-        f.grey = None;
-    }
-    Ok((result, checks))
 }
 
 /// Synchronise the second video with the flash video and decode its frames at its

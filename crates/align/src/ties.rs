@@ -13,19 +13,21 @@
 //! block's centre lies where the reference photo shows that texture. The solve then
 //! runs again with those anchors, and the self-check again on its result.
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use svbrdf_core::geometry::{Mat3, Vec2};
 use svbrdf_core::homography::Homography;
 use svbrdf_cv::features::{estimate_homography, Robust};
 
+use crate::checks::self_check;
 use crate::coarse::pts;
 use crate::config::AlignConfig;
 use crate::fine::{fine_min, patch_settings, refine_matches, to_grey};
 use crate::frames::FrameData;
-use crate::matching::{PlaneTies, Registration};
+use crate::matching::{Matched, PlaneTies, Registration};
 use crate::patch::Grey;
 use crate::selfcheck::{agreeing_blocks, FrameCheck};
-use crate::AlignError;
+use crate::{AlignError, Progress};
 
 /// A frame needs this many agreeing blocks to be tied.
 pub const MIN_TIE_BLOCKS: usize = 4;
@@ -316,6 +318,175 @@ pub(crate) fn guided_matches(
     })
 }
 
+/// Plane ties (`ties`), where kept frames have no reference-photo feature matches of
+/// their own: those lying off the reference photo by blocks that agree are solved
+/// again with the blocks as anchors; then every such frame is matched with the
+/// reference photo at full resolution from where it lies, solved again with those
+/// matches, and the frames they do not confirm are left out. Returns the
+/// registration and its self-check (unchanged where every frame has feature matches).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn tie_to_plane(
+    matched: &Matched,
+    mut result: Registration,
+    mut checks: Vec<FrameCheck>,
+    (ref_img, reference, region): (
+        &svbrdf_core::image::ImageU8,
+        &crate::reference::ReferenceFrame,
+        svbrdf_core::plane::Region,
+    ),
+    cfg: &AlignConfig,
+    progress: &dyn Progress,
+    lap: &mut dyn FnMut(&str),
+    trace: &mut crate::trace::AlignTrace,
+) -> Result<(Registration, Vec<FrameCheck>), AlignError> {
+    let is_untied =
+        |r: &Registration, f: &FrameData| !r.reference_tied.contains(&(f.stream, f.index));
+    if !result.frames.iter().any(|f| is_untied(&result, f)) {
+        for f in &mut result.frames {
+            f.grey = None;
+        }
+        return Ok((result, checks));
+    }
+    let mut all = PlaneTies::new();
+    let mut summary = PlaneTieSummary::default();
+    let mut confirmed = std::collections::BTreeSet::new();
+    let mut solve_again = |all: &PlaneTies,
+                           result: &mut Registration,
+                           checks: &mut Vec<FrameCheck>,
+                           lap: &mut dyn FnMut(&str)|
+     -> Result<(), AlignError> {
+        let mut again = matched.solve(all, cfg, progress, lap, trace)?;
+        again.marker_hunt = result.marker_hunt.take();
+        *result = again;
+        *checks = self_check(result, ref_img, reference, region)?;
+        lap("self-check");
+        Ok(())
+    };
+    // Frames far off first get block ties: the full-resolution matcher searches a few
+    // pixels around where a frame's map puts the reference photo's texture.
+    let mappings = crate::checks::prepared_mappings(&result)?;
+    let (blocks, largest) = ties_from_checks(&result, &checks, &|k, x| {
+        mappings.get(k).and_then(|m| m.plane_to_pixel(x))
+    });
+    summary.offset_before_mm = largest;
+    summary.untied = result
+        .frames
+        .iter()
+        .filter(|f| is_untied(&result, f))
+        .count();
+    if !blocks.is_empty() && largest >= TIE_TRIGGER_MM {
+        summary.ties = blocks.values().map(Vec::len).sum();
+        summary.block_frames = blocks.len();
+        all = blocks;
+        solve_again(&all, &mut result, &mut checks, lap)?;
+        summary.rounds += 1;
+    }
+    // Every frame without feature matches of its own is matched with the reference
+    // photo at full resolution from where it now lies; where that confirms it, those
+    // matches replace its block ties.
+    let grey = Grey::from_image(ref_img);
+    let cm_per_px = matched.cm_per_px;
+    // Only frames the self-check placed (their blocks agreed with the reference photo,
+    // before or after block ties): the matcher searches a few pixels around where a
+    // frame's map puts the texture, and a frame placed wrong on texture that matches
+    // in streaks is "confirmed" there (tiny brushed metal, markers only: 12 frames
+    // confirmed 4 mm off).
+    let placed: std::collections::BTreeSet<(u32, u64)> = checks
+        .iter()
+        .filter(|c| c.offset_mm().is_some())
+        .map(|c| (c.stream, c.frame))
+        .collect();
+    let guided: Vec<((u32, u64), Guided)> = result
+        .frames
+        .par_iter()
+        .zip(&result.mappings)
+        .filter(|(f, _)| is_untied(&result, f) && placed.contains(&(f.stream, f.index)))
+        .map(|(f, blocks)| {
+            let thr_px = cfg.fine_inlier_px * f64::from(f.width.max(f.height)) / 3840.0;
+            let m = guided_matches(
+                f,
+                blocks,
+                (&grey, &reference.plane_from_pixel),
+                cfg,
+                thr_px * cm_per_px,
+            )?;
+            Ok(((f.stream, f.index), m))
+        })
+        .collect::<Result<_, AlignError>>()?;
+    lap("plane ties: matching");
+    for (key, g) in guided {
+        if !g.confirms() {
+            continue;
+        }
+        summary.guided_frames += 1;
+        summary.guided_matches += g.matches.len();
+        confirmed.insert(key);
+        all.insert(
+            key,
+            g.matches
+                .into_iter()
+                .map(|(p, x)| (p, x, cfg.reference_weight))
+                .collect(),
+        );
+    }
+    if !confirmed.is_empty() {
+        solve_again(&all, &mut result, &mut checks, lap)?;
+        summary.rounds += 1;
+    }
+    {
+        let kept: std::collections::HashMap<(u32, u64), usize> = result
+            .frames
+            .iter()
+            .enumerate()
+            .map(|(k, f)| ((f.stream, f.index), k))
+            .collect();
+        summary.frames = all.keys().filter(|k| k.0 == 0).map(|k| k.1).collect();
+        summary.offset_after_mm = all
+            .keys()
+            .filter_map(|k| kept.get(k))
+            .filter_map(|&k| checks.get(k).and_then(|c| c.offset_mm()))
+            .fold(0.0, f64::max);
+        // A registration that needed plane ties keeps only frames that the reference
+        // photo confirms: by feature matches of their own, or by full-resolution
+        // matches over at least half of the frame from where the ties placed it.
+        // Measured (hard-small, markers alone): frames tied by blocks only, or whose
+        // full-resolution matches held under half of their features, were 1-5 mm off
+        // at their 95th percentile in places no block had matched.
+        let drop: std::collections::HashSet<usize> = result
+            .frames
+            .iter()
+            .enumerate()
+            .filter(|(_, f)| {
+                let key = (f.stream, f.index);
+                !result.reference_tied.contains(&key) && !confirmed.contains(&key)
+            })
+            .map(|(k, _)| k)
+            .collect();
+        for f in result.frames.iter().filter(|f| {
+            let key = (f.stream, f.index);
+            !result.reference_tied.contains(&key) && !confirmed.contains(&key)
+        }) {
+            trace.set_fate(f, crate::trace::Fate::Unconfirmed);
+            summary.unconfirmed.push(f.index);
+        }
+        let renumber = crate::checks::remove_frames(&mut result, &drop, |d, n| d.unconfirmed += n);
+        checks = checks
+            .into_iter()
+            .filter_map(|mut c| {
+                c.kept_index = renumber(c.kept_index)?;
+                Some(c)
+            })
+            .collect();
+        result.plane_tied = confirmed;
+        result.plane_ties = Some(summary);
+    }
+    // The patch images kept for this are not needed any more.
+    for f in &mut result.frames {
+        f.grey = None;
+    }
+    Ok((result, checks))
+}
+
 #[cfg(test)]
 mod tests {
     use std::sync::Arc;
@@ -399,6 +570,23 @@ mod tests {
     }
 
     #[test]
+    fn only_texture_that_varies_both_ways_fixes_a_position() {
+        let c = Vec2::new(20.0, 20.0);
+        // Streaks along x (brushed metal): no gradient along them.
+        let streaks = grey(40, 40, |_, y| 128.0 + 60.0 * (0.9 * y).sin());
+        assert!(!two_dimensional(&streaks, c, 5));
+        // Flat: no gradient at all.
+        assert!(!two_dimensional(&grey(40, 40, |_, _| 90.0), c, 5));
+        // Blobs: gradients both ways.
+        let blobs = grey(40, 40, |x, y| {
+            128.0 + 40.0 * (0.7 * x).sin() * (0.6 * y).cos()
+        });
+        assert!(two_dimensional(&blobs, c, 5));
+        // Too close to the border for the patch.
+        assert!(!two_dimensional(&blobs, Vec2::new(3.0, 20.0), 5));
+    }
+
+    #[test]
     fn guided_matches_find_the_plane_across_light_and_scale() {
         // The reference photo: 10 px per cm. The frame sees its texture at half the
         // scale (frame px (x, y) shows reference px (0.5 x + 20.3, 0.5 y + 30.7)),
@@ -457,13 +645,10 @@ mod tests {
         )
         .unwrap();
         assert!(m.confirms(), "{} of {}", m.verified, m.tried);
-        assert!(m.verified > 300, "{}", m.verified);
+        // Of 400 features, those on two-dimensional texture.
+        assert!(m.verified > 100, "{}", m.verified);
         let m = m.matches;
-        assert!(
-            m.len() <= MAX_GUIDED && m.len() > MAX_GUIDED / 2,
-            "{}",
-            m.len()
-        );
+        assert!(m.len() <= MAX_GUIDED, "{}", m.len());
         let mut err: Vec<f64> = m.iter().map(|(p, x)| (truth(*p) - x).norm()).collect();
         err.sort_by(f64::total_cmp);
         // The map was off by 0.042 cm (0.42 reference px).
