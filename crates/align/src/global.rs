@@ -352,11 +352,7 @@ impl Matched {
             support,
             marker_hunt: None,
             plane_ties: None,
-            plane_tied: ties
-                .iter()
-                .filter(|(_, v)| !v.is_empty())
-                .map(|(k, _)| *k)
-                .collect(),
+            plane_tied: Default::default(),
         })
     }
 }

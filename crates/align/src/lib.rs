@@ -574,6 +574,10 @@ fn register_and_write(
             result = tied;
             checks = c;
         }
+        // The patch images kept for the plane ties are not needed any more.
+        for f in &mut result.frames {
+            f.grey = None;
+        }
         apply_self_check(&mut result, &checks, &cfg.self_check, &mut warnings, trace)?;
         checks::require_confirmation(&result, &checks)?;
         checks

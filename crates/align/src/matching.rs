@@ -82,8 +82,8 @@ pub struct Registration {
     pub support: crate::support::SupportSummary,
     /// The marker hunt, where it ran (set by the caller).
     pub marker_hunt: Option<crate::hunt::MarkerHunt>,
-    /// Frames anchored by plane ties (blocks matched with the reference photo after a
-    /// first solve), as (stream, frame number).
+    /// Frames confirmed by plane ties (full-resolution matches with the reference
+    /// photo after a first solve), as (stream, frame number); set by the caller.
     pub plane_tied: BTreeSet<(u32, u64)>,
     /// What the plane ties did, where they ran (set by the caller).
     pub plane_ties: Option<crate::ties::PlaneTieSummary>,
@@ -92,8 +92,8 @@ pub struct Registration {
 /// Frames matched and anchored, ready for the global solve: what
 /// [`match_frames`] found, held so that the solve can run again.
 pub struct Matched {
-    /// Frames kept by the connectivity map (flash stream first), their patch images
-    /// dropped.
+    /// Frames kept by the connectivity map (flash stream first); only those without
+    /// reference-photo feature matches keep their patch images (for plane ties).
     pub(crate) frames: Vec<FrameData>,
     /// Fine correspondences per frame pair (indices into `frames`).
     pub(crate) fine: Vec<(usize, usize, Option<FineMatch>)>,

@@ -1,5 +1,5 @@
 //! Plane ties (issue 18, item 2): frames tied to the reference photo across the
-//! change of light by what the self-check matched, not by features.
+//! change of light by what the self-check and the patch matcher find, not by features.
 //!
 //! Features of a flash frame and of the no-flash reference photo match poorly where the
 //! light changes the texture's look, or at the 2-3x scale between them; then only the
@@ -7,11 +7,12 @@
 //! them bend unseen by the solve. The self-check compares every registered frame
 //! with the reference photo on the plane, at the same scale, block by block (4 cm,
 //! colour correlation robust to the change of light), and finds where the reference
-//! photo shows each block's texture. Where a frame without reference matches of its
+//! photo shows each block's texture. Where a frame without feature matches of its
 //! own has blocks that agree on one displacement (a shift, or an affine field where
-//! the frame is bent), each such block becomes an anchor: the frame pixel at the
-//! block's centre lies where the reference photo shows that texture. The solve then
-//! runs again with those anchors, and the self-check again on its result.
+//! the frame is bent), each such block becomes an anchor and the solve runs again.
+//! Then every such frame the self-check placed is matched with the reference photo at
+//! full resolution from where it lies ([`guided_matches`]), solved again with those
+//! matches, and the frames they do not confirm are left out ([`tie_to_plane`]).
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
@@ -190,7 +191,6 @@ impl Guided {
     /// where it lies right).
     pub fn confirms(&self) -> bool {
         self.verified >= self.min.max(1)
-            && !self.matches.is_empty()
             && self.verified as f64 >= GUIDED_MIN_SHARE * self.tried as f64
     }
 }
@@ -342,9 +342,6 @@ pub(crate) fn tie_to_plane(
     let is_untied =
         |r: &Registration, f: &FrameData| !r.reference_tied.contains(&(f.stream, f.index));
     if !result.frames.iter().any(|f| is_untied(&result, f)) {
-        for f in &mut result.frames {
-            f.grey = None;
-        }
         return Ok((result, checks));
     }
     let mut all = PlaneTies::new();
@@ -433,57 +430,47 @@ pub(crate) fn tie_to_plane(
         solve_again(&all, &mut result, &mut checks, lap)?;
         summary.rounds += 1;
     }
-    {
-        let kept: std::collections::HashMap<(u32, u64), usize> = result
-            .frames
-            .iter()
-            .enumerate()
-            .map(|(k, f)| ((f.stream, f.index), k))
-            .collect();
-        summary.frames = all.keys().filter(|k| k.0 == 0).map(|k| k.1).collect();
-        summary.offset_after_mm = all
-            .keys()
-            .filter_map(|k| kept.get(k))
-            .filter_map(|&k| checks.get(k).and_then(|c| c.offset_mm()))
-            .fold(0.0, f64::max);
-        // A registration that needed plane ties keeps only frames that the reference
-        // photo confirms: by feature matches of their own, or by full-resolution
-        // matches over at least half of the frame from where the ties placed it.
-        // Measured (hard-small, markers alone): frames tied by blocks only, or whose
-        // full-resolution matches held under half of their features, were 1-5 mm off
-        // at their 95th percentile in places no block had matched.
-        let drop: std::collections::HashSet<usize> = result
-            .frames
-            .iter()
-            .enumerate()
-            .filter(|(_, f)| {
-                let key = (f.stream, f.index);
-                !result.reference_tied.contains(&key) && !confirmed.contains(&key)
-            })
-            .map(|(k, _)| k)
-            .collect();
-        for f in result.frames.iter().filter(|f| {
-            let key = (f.stream, f.index);
-            !result.reference_tied.contains(&key) && !confirmed.contains(&key)
-        }) {
-            trace.set_fate(f, crate::trace::Fate::Unconfirmed);
-            summary.unconfirmed.push(f.index);
-        }
-        let renumber = crate::checks::remove_frames(&mut result, &drop, |d, n| d.unconfirmed += n);
-        checks = checks
-            .into_iter()
-            .filter_map(|mut c| {
-                c.kept_index = renumber(c.kept_index)?;
-                Some(c)
-            })
-            .collect();
-        result.plane_tied = confirmed;
-        result.plane_ties = Some(summary);
+    let kept: std::collections::HashMap<(u32, u64), usize> = result
+        .frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| ((f.stream, f.index), k))
+        .collect();
+    summary.frames = all.keys().filter(|k| k.0 == 0).map(|k| k.1).collect();
+    summary.offset_after_mm = all
+        .keys()
+        .filter_map(|k| kept.get(k))
+        .filter_map(|&k| checks.get(k).and_then(|c| c.offset_mm()))
+        .fold(0.0, f64::max);
+    // A registration that needed plane ties keeps only frames that the reference
+    // photo confirms: by feature matches of their own, or by full-resolution matches
+    // over at least half of the frame from where the ties placed it. Measured
+    // (hard-small, markers alone): frames tied by blocks only, or whose full-resolution
+    // matches held under half of their features, were 1-5 mm off at their 95th
+    // percentile in places no block had matched.
+    let drop: std::collections::HashSet<usize> = result
+        .frames
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| is_untied(&result, f) && !confirmed.contains(&(f.stream, f.index)))
+        .map(|(k, _)| k)
+        .collect();
+    for &k in &drop {
+        let f = &result.frames[k];
+        trace.set_fate(f, crate::trace::Fate::Unconfirmed);
+        summary.unconfirmed.push(f.index);
     }
-    // The patch images kept for this are not needed any more.
-    for f in &mut result.frames {
-        f.grey = None;
-    }
+    summary.unconfirmed.sort_unstable();
+    let renumber = crate::checks::remove_frames(&mut result, &drop, |d, n| d.unconfirmed += n);
+    checks = checks
+        .into_iter()
+        .filter_map(|mut c| {
+            c.kept_index = renumber(c.kept_index)?;
+            Some(c)
+        })
+        .collect();
+    result.plane_tied = confirmed;
+    result.plane_ties = Some(summary);
     Ok((result, checks))
 }
 
