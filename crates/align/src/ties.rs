@@ -482,7 +482,7 @@ mod tests {
     use svbrdf_cv::features::Features;
 
     use super::*;
-    use crate::selfcheck::tests::lattice;
+    use crate::selfcheck::lattice;
 
     fn checked(blocks: Vec<[f64; 4]>) -> FrameCheck {
         // What the self-check writes for these blocks.

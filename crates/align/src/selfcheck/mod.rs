@@ -1,0 +1,475 @@
+//! The self-check after the global solve: every kept frame, warped to the plane with
+//! its own solution, is compared with the reference photo, which the markers alone tie
+//! to the plane. The solve's residual only says how well the frames agree with each
+//! other; a chain of frames that drifted together, or a capture anchored one tile off
+//! on a repetitive texture, has a small residual and a large error. The reference
+//! photo does not share those errors.
+//!
+//! Per frame, blocks of the plane (4 cm) are matched between the frame and the
+//! reference by normalised cross-correlation of their colours (per channel, so the
+//! flash-versus-room lighting change and the colour of the light cancel), first at
+//! 4 mm cells over +-4 cm, then at 1 mm cells around the best coarse shift, with a
+//! sub-cell parabola. Clipped pixels (the flash highlight) are left out. A frame's
+//! displacement is the median over its blocks that match clearly.
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+use svbrdf_core::capture::PreparedMapping;
+use svbrdf_core::geometry::Vec2;
+use svbrdf_core::homography::Homography;
+use svbrdf_core::image::ImageU8;
+use svbrdf_core::plane::{PlaneGrid, Region};
+
+mod consensus;
+mod plane_image;
+
+pub use consensus::agreeing_blocks;
+#[cfg(test)]
+pub(crate) use consensus::tests::lattice;
+use consensus::{consensus, warp};
+use plane_image::{best_shift, parabola, rectify, PlaneImage, MIN_VALID};
+
+/// Fine cells per cm of the comparison grid.
+const FINE_PX_PER_CM: f64 = 10.0;
+/// Coarse cells are this many fine cells.
+const COARSE: usize = 4;
+/// Block side in coarse cells (4 cm).
+const BLOCK_COARSE: usize = 10;
+/// Coarse search radius in coarse cells (4 cm).
+const SEARCH_COARSE: i32 = 10;
+/// Fine search radius around the coarse shift, fine cells.
+const SEARCH_FINE: i32 = 6;
+/// A block matches clearly above this correlation.
+const MIN_SCORE: f64 = 0.6;
+/// A match away from the registered position must beat the best one near it by this
+/// much correlation to count.
+const AMBIGUITY: f64 = 0.1;
+
+/// Settings of the self-check.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SelfCheckConfig {
+    /// Run it at all.
+    pub enabled: bool,
+    /// A frame whose median displacement from the reference photo exceeds this is
+    /// inconsistent, mm.
+    pub max_shift_mm: f64,
+    /// Refuse the capture when more than this share of the checked frames is
+    /// inconsistent (below it, the inconsistent frames are dropped).
+    pub max_inconsistent_share: f64,
+}
+
+impl Default for SelfCheckConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            max_shift_mm: 1.0,
+            max_inconsistent_share: 0.2,
+        }
+    }
+}
+
+/// The check of one frame.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FrameCheck {
+    /// Index of the frame in the registration (kept-frame order).
+    pub kept_index: usize,
+    /// Frame number in its video.
+    pub frame: u64,
+    /// Camera stream.
+    pub stream: u32,
+    /// Blocks compared (enough of them seen in both images).
+    pub blocks: usize,
+    /// Blocks that matched clearly.
+    pub matched: usize,
+    /// Matched blocks that agree on the frame's displacement (see `shift_mm`).
+    #[serde(default)]
+    pub agreeing: usize,
+    /// Displacement from the reference photo that the largest group of agreeing
+    /// matched blocks shows (within 0.5 mm or a quarter of it; the median of theirs),
+    /// mm (`None`: no block matched clearly, or no group holds a third of them: the
+    /// frame is unverified).
+    pub shift_mm: Option<f64>,
+    /// Largest displacement of a matched block, mm.
+    pub max_shift_mm: Option<f64>,
+    /// Median correlation of the matched blocks.
+    pub score: Option<f64>,
+    /// Displacement from the reference photo where the frame's blocks agree on one
+    /// affine field rather than one shift (a frame registered warped: parts of it off
+    /// by different amounts), mm: the 75th percentile of the field's length over the
+    /// blocks that agree with it (`None`: no such field holds clearly more blocks than
+    /// the shift does; see [`warp`]).
+    #[serde(default)]
+    pub warp_mm: Option<f64>,
+    /// Matched blocks that agree with that affine field.
+    #[serde(default)]
+    pub warp_agreeing: usize,
+    /// Every matched block: its centre on the plane (world cm) and where the reference
+    /// photo shows its texture relative to it (world axes, mm), as
+    /// `[x_cm, y_cm, dx_mm, dy_mm]`.
+    #[serde(default)]
+    pub block_shifts: Vec<[f64; 4]>,
+}
+
+impl FrameCheck {
+    /// Whether this frame disagrees with the reference photo beyond `limit_mm`.
+    pub fn inconsistent(&self, limit_mm: f64) -> bool {
+        self.offset_mm().is_some_and(|s| s > limit_mm)
+    }
+
+    /// How far the frame lies from the reference photo, mm: its shift, or where its
+    /// blocks agree on a warp, the larger of the two.
+    pub fn offset_mm(&self) -> Option<f64> {
+        match (self.shift_mm, self.warp_mm) {
+            (Some(s), Some(w)) => Some(s.max(w)),
+            (s, w) => s.or(w),
+        }
+    }
+}
+
+/// One frame to check: its thumbnail, full-resolution size and sub-frame mapping.
+pub struct CheckedFrame<'a> {
+    /// Frame number in its video.
+    pub frame: u64,
+    /// Camera stream.
+    pub stream: u32,
+    /// Colour thumbnail.
+    pub thumb: &'a ImageU8,
+    /// Full-resolution width, pixels (the mapping's coordinates).
+    pub width: u32,
+    /// The frame's mapping (full-resolution pixels <-> plane cm).
+    pub mapping: PreparedMapping,
+}
+
+/// Compare every frame with the reference photo over `region`.
+pub fn check(
+    reference: &ImageU8,
+    reference_plane_from_pixel: &Homography,
+    region: Region,
+    frames: &[CheckedFrame],
+) -> Vec<FrameCheck> {
+    let Ok(grid) = PlaneGrid::new(region, FINE_PX_PER_CM) else {
+        return Vec::new();
+    };
+    let Some(ref_pixel) = reference_plane_from_pixel.inverse() else {
+        return Vec::new();
+    };
+    let ref_fine = rectify(&grid, reference, &|q| ref_pixel.apply(q));
+    let ref_coarse = ref_fine.reduce(COARSE);
+    frames
+        .par_iter()
+        .enumerate()
+        .map(|(k, f)| {
+            let s = f.thumb.width as f64 / f64::from(f.width);
+            let fine = rectify(&grid, f.thumb, &|q| {
+                f.mapping
+                    .plane_to_pixel(q)
+                    .map(|p| Vec2::new((p.x + 0.5) * s - 0.5, (p.y + 0.5) * s - 0.5))
+            });
+            let mut c = check_frame(k, f, &fine, &ref_fine, &ref_coarse);
+            // Grid cells (rows downwards from the region's top edge) to world axes; the
+            // warp's affine field is the same field in either.
+            for b in &mut c.block_shifts {
+                *b = [
+                    grid.region.x_min + b[0],
+                    grid.region.y_max - b[1],
+                    b[2],
+                    -b[3],
+                ];
+            }
+            c
+        })
+        .collect()
+}
+
+fn check_frame(
+    k: usize,
+    f: &CheckedFrame,
+    fine: &PlaneImage,
+    ref_fine: &PlaneImage,
+    ref_coarse: &PlaneImage,
+) -> FrameCheck {
+    let coarse = fine.reduce(COARSE);
+    let n = BLOCK_COARSE;
+    let mut shifts = Vec::new();
+    let mut centres = Vec::new();
+    let mut scores = Vec::new();
+    let mut blocks = 0;
+    // Blocks on a half-overlapping lattice of coarse cells.
+    let step = (n / 2).max(1);
+    let mut by = 0;
+    while by + n <= coarse.h {
+        let mut bx = 0;
+        while bx + n <= coarse.w {
+            let seen = (0..n * n)
+                .filter(|i| {
+                    coarse
+                        .get((bx + i % n) as i64, (by + i / n) as i64)
+                        .is_some()
+                })
+                .count();
+            if (seen as f64) >= MIN_VALID * (n * n) as f64 {
+                blocks += 1;
+                let (fx, fy) = ((bx * COARSE) as i64, (by * COARSE) as i64);
+                // Near the registered position, and anywhere in the search range.
+                let local = best_shift(fine, ref_fine, fx, fy, n * COARSE, (0, 0), SEARCH_FINE);
+                let global = best_shift(
+                    &coarse,
+                    ref_coarse,
+                    bx as i64,
+                    by as i64,
+                    n,
+                    (0, 0),
+                    SEARCH_COARSE,
+                )
+                .and_then(|(c, _, _)| {
+                    let centre = (c.0 * COARSE as i64, c.1 * COARSE as i64);
+                    best_shift(fine, ref_fine, fx, fy, n * COARSE, centre, SEARCH_FINE)
+                });
+                // A far match counts only when it is clearly better than the best near
+                // the registered position: on a repetitive texture several positions
+                // match about equally, and the registration's own is then believed.
+                let chosen = match (local, global) {
+                    (Some(l), Some(g)) if l.1 >= g.1 - AMBIGUITY => Some(l),
+                    (_, Some(g)) => Some(g),
+                    (l, None) => l,
+                };
+                if let Some((s, v, nb)) = chosen.filter(|c| c.1 >= MIN_SCORE) {
+                    let dx = s.0 as f64 + parabola(nb[0], v, nb[1]);
+                    let dy = s.1 as f64 + parabola(nb[2], v, nb[3]);
+                    shifts.push((10.0 * dx / FINE_PX_PER_CM, 10.0 * dy / FINE_PX_PER_CM));
+                    let centre = |b: usize| (b * COARSE) as f64 + 0.5 * (n * COARSE) as f64;
+                    centres.push((centre(bx) / FINE_PX_PER_CM, centre(by) / FINE_PX_PER_CM));
+                    scores.push(v);
+                }
+            }
+            bx += step;
+        }
+        by += step;
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        (!v.is_empty()).then(|| v[v.len() / 2])
+    };
+    let blocks_mm: Vec<[f64; 4]> = centres
+        .iter()
+        .zip(&shifts)
+        .map(|(c, s)| [c.0, c.1, s.0, s.1])
+        .collect();
+    let mut c = summarise(k, f.frame, f.stream, blocks, blocks_mm);
+    c.score = median(&mut scores);
+    c
+}
+
+/// The check of a frame (`kept_index`, video `frame`, `stream`) from the blocks
+/// compared (`blocks`) and those that matched clearly (`[x, y, dx_mm, dy_mm]`): the
+/// displacement they agree on, as a shift or as an affine field (no score).
+pub(crate) fn summarise(
+    kept_index: usize,
+    frame: u64,
+    stream: u32,
+    blocks: usize,
+    matched: Vec<[f64; 4]>,
+) -> FrameCheck {
+    let shifts: Vec<(f64, f64)> = matched.iter().map(|b| (b[2], b[3])).collect();
+    let max = shifts
+        .iter()
+        .map(|s| s.0.hypot(s.1))
+        .fold(None, |m: Option<f64>, v| Some(m.map_or(v, |m| m.max(v))));
+    let (shift, agreeing) = consensus(&shifts);
+    let (warp_mm, warp_agreeing) = warp(&matched, agreeing);
+    FrameCheck {
+        kept_index,
+        frame,
+        stream,
+        blocks,
+        matched: shifts.len(),
+        agreeing,
+        shift_mm: shift,
+        max_shift_mm: max,
+        score: None,
+        warp_mm,
+        warp_agreeing,
+        block_shifts: matched,
+    }
+}
+/// How many frames the check verified (their offset is known), and the largest offset
+/// among them, mm (0 when none).
+pub fn verified(checks: &[FrameCheck]) -> (usize, f64) {
+    checks
+        .iter()
+        .filter_map(FrameCheck::offset_mm)
+        .fold((0, 0.0), |(n, m), s| (n + 1, f64::max(m, s)))
+}
+
+/// The frames more than `limit_mm` off, said in one clause ("frames 31-68 (5 of 40
+/// checked) lie 2.9-3.1 mm (median 3.0 mm) from where the reference photo shows the
+/// same texture"), or `None` when no frame is.
+pub fn disagreement(checks: &[FrameCheck], limit_mm: f64) -> Option<String> {
+    let bad: Vec<&FrameCheck> = checks.iter().filter(|c| c.inconsistent(limit_mm)).collect();
+    let mut sorted: Vec<f64> = bad.iter().filter_map(|c| c.offset_mm()).collect();
+    if sorted.is_empty() {
+        return None;
+    }
+    sorted.sort_by(f64::total_cmp);
+    let frames: Vec<u64> = bad.iter().map(|c| c.frame).collect();
+    let bent: Vec<u64> = bad
+        .iter()
+        .filter(|c| c.warp_mm.is_some_and(|w| w > limit_mm))
+        .map(|c| c.frame)
+        .collect();
+    let bent = if bent.is_empty() {
+        String::new()
+    } else {
+        format!(
+            " (frames {} bent: parts of each off by different amounts)",
+            ranges(&bent)
+        )
+    };
+    Some(format!(
+        "frames {} ({} of {} checked) lie {:.1}-{:.1} mm (median {:.1} mm) from where the reference photo shows the same texture{bent}",
+        ranges(&frames),
+        bad.len(),
+        verified(checks).0,
+        sorted[0],
+        sorted[sorted.len() - 1],
+        sorted[sorted.len() / 2]
+    ))
+}
+
+/// Runs of consecutive kept frames, as "a-b" frame-number ranges, for messages.
+pub fn ranges(frames: &[u64]) -> String {
+    let mut out: Vec<String> = Vec::new();
+    let mut i = 0;
+    while i < frames.len() {
+        let mut j = i;
+        while j + 1 < frames.len() && frames[j + 1] > frames[j] && frames[j + 1] - frames[j] <= 10 {
+            j += 1;
+        }
+        out.push(if i == j {
+            frames[i].to_string()
+        } else {
+            format!("{}-{}", frames[i], frames[j])
+        });
+        i = j + 1;
+    }
+    out.join(", ")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A tile-like texture: 4 mm cells of hashed colours with a smooth shading.
+    fn plane_colour(x: f64, y: f64) -> [u8; 3] {
+        let (i, j) = ((x / 0.4).floor() as i64, (y / 0.4).floor() as i64);
+        let h = |k: i64| {
+            let v = (i.wrapping_mul(73_856_093)
+                ^ j.wrapping_mul(19_349_663)
+                ^ k.wrapping_mul(83_492_791))
+            .rem_euclid(200);
+            (30 + v) as f64
+        };
+        let shade = 0.8 + 0.2 * (0.3 * x).sin();
+        [h(1), h(2), h(3)].map(|v| (v * shade) as u8)
+    }
+
+    /// An image of `w` x `h` pixels seeing the plane through `plane_from_pixel`.
+    fn render(w: usize, h: usize, plane_from_pixel: &Homography) -> ImageU8 {
+        let mut img = ImageU8::new(w, h, 3);
+        for r in 0..h {
+            for c in 0..w {
+                let q = plane_from_pixel
+                    .apply(Vec2::new(c as f64, r as f64))
+                    .unwrap();
+                img.pixel_mut(c, r).copy_from_slice(&plane_colour(q.x, q.y));
+            }
+        }
+        img
+    }
+
+    /// Pixel (u, v) -> plane (x0 + u / s, y0 - v / s).
+    fn affine(x0: f64, y0: f64, s: f64) -> Homography {
+        Homography(svbrdf_core::geometry::Mat3::new(
+            1.0 / s,
+            0.0,
+            x0,
+            0.0,
+            -1.0 / s,
+            y0,
+            0.0,
+            0.0,
+            1.0,
+        ))
+    }
+
+    fn mapping(h: &Homography, w: u32) -> PreparedMapping {
+        let frame = svbrdf_core::capture::Frame {
+            id: 0,
+            source: 0,
+            frame_index: Some(0),
+            image: None,
+            time_s: None,
+            width: w,
+            height: w,
+            mapping: svbrdf_core::capture::FrameMapping::Homographies {
+                subframes: vec![svbrdf_core::capture::SubFrame {
+                    rect: [-0.5, -0.5, w as f64 - 0.5, w as f64 - 0.5],
+                    plane_from_pixel: svbrdf_core::geometry::mat3_to_rows(&h.0),
+                }],
+            },
+            camera_position: [0.0, 0.0, 10.0],
+            light_position: [0.0, 0.0, 10.0],
+            exposure_gain: None,
+        };
+        PreparedMapping::new(&frame).unwrap()
+    }
+
+    #[test]
+    fn frames_registered_off_the_reference_are_flagged_and_only_those() {
+        // Reference: 20 px/cm over [-8, 8] cm.
+        let ref_h = affine(-8.0, 8.0, 20.0);
+        let reference = render(320, 320, &ref_h);
+        // Ten frames at 16 px/cm, each 10 cm wide, moving across; frames 4-6 are
+        // rendered where they are but registered 5 mm off (a misregistered stretch).
+        let side = 160u32;
+        let mut thumbs = Vec::new();
+        let mut maps = Vec::new();
+        for k in 0..10 {
+            let x0 = -8.0 + 0.6 * k as f64;
+            let truth = affine(x0, 5.0 - 0.3 * k as f64, 16.0);
+            thumbs.push(render(side as usize, side as usize, &truth));
+            let off = if (4..=6).contains(&k) { 0.5 } else { 0.0 };
+            maps.push(affine(x0 + off, 5.0 - 0.3 * k as f64, 16.0));
+        }
+        let frames: Vec<CheckedFrame> = (0..10)
+            .map(|k| CheckedFrame {
+                frame: 5 * k as u64,
+                stream: 0,
+                thumb: &thumbs[k],
+                width: side,
+                mapping: mapping(&maps[k], side),
+            })
+            .collect();
+        let region = Region::centred(16.0, 16.0);
+        let checks = check(&reference, &ref_h, region, &frames);
+        assert_eq!(checks.len(), 10);
+        for c in &checks {
+            let s = c
+                .shift_mm
+                .unwrap_or_else(|| panic!("frame {} unverified: {c:?}", c.frame));
+            if (20..=30).contains(&c.frame) {
+                assert!((s - 5.0).abs() < 0.3, "frame {}: {s} mm", c.frame);
+                assert!(c.inconsistent(1.0));
+            } else {
+                assert!(s < 0.3, "frame {}: {s} mm", c.frame);
+                assert!(!c.inconsistent(1.0));
+            }
+        }
+    }
+
+    #[test]
+    fn ranges_group_consecutive_frames() {
+        assert_eq!(ranges(&[5, 10, 15, 40, 45, 90]), "5-15, 40-45, 90");
+        assert_eq!(ranges(&[]), "");
+    }
+}
