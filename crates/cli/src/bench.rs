@@ -346,6 +346,7 @@ pub fn maps_accuracy(
 ) -> Result<(
     svbrdf_fit::evaluate::Accuracy,
     Option<svbrdf_fit::evaluate::ConfidenceBreakdown>,
+    svbrdf_fit::evaluate::MaterialBreakdown,
 )> {
     let (maps, intensity) = crate::run_cmd::load_fit(fit_dir)?;
     let truth = load_truth(synth_dir)?;
@@ -366,7 +367,14 @@ pub fn maps_accuracy(
             &truth,
         )
     });
-    Ok((acc, by_confidence))
+    let by_material = svbrdf_fit::evaluate::relight_by_material(
+        &maps.grid,
+        &maps.params,
+        maps.model.model(),
+        intensity,
+        &truth,
+    );
+    Ok((acc, by_confidence, by_material))
 }
 
 /// Fit a capture with the intensity withheld, with and without refinement, and compare
@@ -756,7 +764,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
         }
     }
     if let (Some(m), Some(t)) = (&a.fit_maps, &a.truth) {
-        let (acc, by_confidence) = maps_accuracy(m, t)?;
+        let (acc, by_confidence, by_material) = maps_accuracy(m, t)?;
         println!(
             "{}",
             json!({
@@ -764,6 +772,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
                 "maps": m.display().to_string(),
                 "accuracy": acc,
                 "relight_by_specular_confidence": by_confidence,
+                "relight_by_true_material": by_material,
             })
         );
         if a.no_brdf && a.fit_capture.is_none() && a.align_capture.is_none() {

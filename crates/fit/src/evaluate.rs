@@ -270,6 +270,116 @@ pub fn relight_by_confidence(
     }
 }
 
+/// Where the relighting error lies, by what the true material is at each pixel: the
+/// classes say which part of the reflectance a fit gets wrong under new lights (a
+/// research figure of `bench --fit-maps`, not a quality score).
+#[derive(Debug, Clone, Default, Serialize, Deserialize)]
+pub struct MaterialBreakdown {
+    /// Classes of the true maps, in order: matte (mean `rho_s` < 0.05), glossy
+    /// (isotropic, `alpha` < 0.2), anisotropic (`alpha` ratio > 1.5), broad lobe (the
+    /// rest), and border (within two truth pixels of another class: thin seams and
+    /// edges, where the video's blur mixes neighbours).
+    pub classes: [String; 5],
+    /// Share of the compared pixels in each class.
+    pub shares: [f64; 5],
+    /// Per held-out light, each class's share of that light's squared error.
+    pub error_share: Vec<[f64; 5]>,
+    /// Per held-out light, each class's mean fitted radiance over its mean true
+    /// radiance (0 for an empty class): a bias that survives averaging.
+    pub mean_ratio: Vec<[f64; 5]>,
+}
+
+/// Class of the true material at truth pixel `t` (see [`MaterialBreakdown`]), without
+/// the border class.
+fn true_class(truth: &Truth, t: usize) -> usize {
+    let s = &truth.specular.data[3 * t..3 * t + 3];
+    let rc = truth.roughness.channels;
+    let (ax, ay) = (
+        truth.roughness.data[rc * t],
+        truth.roughness.data[rc * t + 1],
+    );
+    if (s[0] + s[1] + s[2]) / 3.0 < 0.05 {
+        0
+    } else if ax.max(ay) > 1.5 * ax.min(ay) {
+        2
+    } else if ax.max(ay) < 0.2 {
+        1
+    } else {
+        3
+    }
+}
+
+/// [`MaterialBreakdown`] of fitted maps.
+pub fn relight_by_material(
+    grid: &PlaneGrid,
+    params: &[BrdfParams],
+    model: &dyn BrdfModel,
+    intensity: [f64; 3],
+    truth: &Truth,
+) -> MaterialBreakdown {
+    let (tw, th) = (truth.grid.width as i64, truth.grid.height as i64);
+    let class_at = |c: i64, r: i64| true_class(truth, (r * tw + c) as usize);
+    let idx: Vec<(usize, Vec2, usize)> = compared_pixels(grid, truth)
+        .into_iter()
+        .map(|(i, q)| {
+            let p = truth.grid.to_pixel(q);
+            let (c, r) = (
+                (p.x.round() as i64).clamp(0, tw - 1),
+                (p.y.round() as i64).clamp(0, th - 1),
+            );
+            let k = class_at(c, r);
+            let border = (-2..=2).any(|dy: i64| {
+                (-2..=2).any(|dx: i64| {
+                    let (x, y) = (c + dx, r + dy);
+                    x >= 0 && y >= 0 && x < tw && y < th && class_at(x, y) != k
+                })
+            });
+            (i, q, if border { 4 } else { k })
+        })
+        .collect();
+    let mut counts = [0usize; 5];
+    for &(_, _, k) in &idx {
+        counts[k] += 1;
+    }
+    let total = idx.len().max(1) as f64;
+    let mut error_share = Vec::new();
+    let mut mean_ratio = Vec::new();
+    for (img, light, camera) in &truth.holdout {
+        let ours = relight(grid, params, model, intensity, *light, *camera);
+        let (mut se, mut sum_t, mut sum_o) = ([0.0f64; 5], [0.0f64; 5], [0.0f64; 5]);
+        for &(i, q, k) in &idx {
+            let t = sample(img, &truth.grid, q);
+            for c in 0..3 {
+                let o = f64::from(ours.data[3 * i + c]);
+                se[k] += (o - t[c]).powi(2);
+                sum_t[k] += t[c];
+                sum_o[k] += o;
+            }
+        }
+        let all: f64 = se.iter().sum();
+        error_share.push(se.map(|e| if all > 0.0 { e / all } else { 0.0 }));
+        mean_ratio.push(std::array::from_fn(|k| {
+            if sum_t[k] > 0.0 {
+                sum_o[k] / sum_t[k]
+            } else {
+                0.0
+            }
+        }));
+    }
+    MaterialBreakdown {
+        classes: [
+            "matte".into(),
+            "glossy".into(),
+            "anisotropic".into(),
+            "broad lobe".into(),
+            "border".into(),
+        ],
+        shares: counts.map(|c| c as f64 / total),
+        error_share,
+        mean_ratio,
+    }
+}
+
 /// What perfect maps lose to a blur: the true maps, each blurred by a Gaussian of
 /// `sigma_px` of their own pixels (normals renormalised), compared with the truth as
 /// fitted maps are. A capture whose video samples the surface at about one output
@@ -339,6 +449,82 @@ pub fn gaussian_blur(img: &ImageF32, sigma_px: f64) -> ImageF32 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A 2 x 1 cm truth: glossy left half, matte right half, one held-out light.
+    fn halves() -> (Truth, Vec<BrdfParams>) {
+        let grid = PlaneGrid::new(svbrdf_core::plane::Region::centred(2.0, 1.0), 10.0).unwrap();
+        let glossy = |c: usize| c < grid.width / 2;
+        let params: Vec<BrdfParams> = (0..grid.len())
+            .map(|i| BrdfParams {
+                rho_d: [0.3; 3],
+                rho_s: if glossy(i % grid.width) {
+                    [0.4; 3]
+                } else {
+                    [0.0; 3]
+                },
+                alpha_x: 0.1,
+                alpha_y: 0.1,
+                ..BrdfParams::default()
+            })
+            .collect();
+        let map = |f: &dyn Fn(&BrdfParams) -> [f32; 3]| {
+            let mut img = ImageF32::new(grid.width, grid.height, 3);
+            for (px, p) in img.data.chunks_exact_mut(3).zip(&params) {
+                px.copy_from_slice(&f(p));
+            }
+            img
+        };
+        let (light, camera) = (Vec3::new(0.5, 0.0, 3.0), Vec3::new(0.0, 0.0, 5.0));
+        let model = ModelKind::Ward;
+        let lit = relight(&grid, &params, model.model(), [10.0; 3], light, camera);
+        let mut mask = ImageF32::new(grid.width, grid.height, 3);
+        mask.data.fill(1.0);
+        let truth = Truth {
+            grid: grid.clone(),
+            diffuse: map(&|p| p.rho_d.map(|v| v as f32)),
+            specular: map(&|p| p.rho_s.map(|v| v as f32)),
+            roughness: map(&|p| [p.alpha_x as f32, p.alpha_y as f32, 0.0]),
+            normal: map(&|_| [0.0, 0.0, 1.0]),
+            light_intensity: 10.0,
+            mask,
+            holdout: vec![(lit, light, camera)],
+            model,
+        };
+        (truth, params)
+    }
+
+    #[test]
+    fn relighting_error_is_put_where_the_true_material_is_wrong() {
+        let (truth, mut params) = halves();
+        let w = truth.grid.width;
+        // The matte half fitted too bright: all of the error is matte's, and only its
+        // mean ratio moves.
+        for (i, p) in params.iter_mut().enumerate() {
+            if i % w >= w / 2 {
+                p.rho_d = [0.45; 3];
+            }
+        }
+        let b = relight_by_material(
+            &truth.grid,
+            &params,
+            ModelKind::Ward.model(),
+            [10.0; 3],
+            &truth,
+        );
+        let share: f64 = b.shares.iter().sum();
+        assert!((share - 1.0).abs() < 1e-9);
+        // Two truth pixels either side of the middle are the border.
+        assert!((b.shares[4] - 0.2).abs() < 0.051, "{:?}", b.shares);
+        assert!((b.shares[0] - 0.4).abs() < 0.051 && (b.shares[1] - 0.4).abs() < 0.051);
+        let e = b.error_share[0];
+        assert!(e[1] < 1e-9 && e[2] == 0.0 && e[3] == 0.0, "{e:?}");
+        assert!(e[0] > 0.5 && (e[0] + e[4] - 1.0).abs() < 1e-9, "{e:?}");
+        let r = b.mean_ratio[0];
+        assert!(
+            (r[1] - 1.0).abs() < 1e-6 && r[0] > 1.2 && r[2] == 0.0,
+            "{r:?}"
+        );
+    }
 
     #[test]
     fn gaussian_blur_keeps_flat_images_and_mass_and_spreads_symmetrically() {
