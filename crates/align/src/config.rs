@@ -74,6 +74,11 @@ pub struct AlignConfig {
     /// (`ties`); needs the self-check.
     #[serde(default = "default_true")]
     pub plane_ties: bool,
+    /// Find the corners of markers that detection missed in a frame (cut by the
+    /// frame's edge, or blurred) where the frame's map puts them, and solve again
+    /// (`partial`).
+    #[serde(default = "default_true")]
+    pub marker_corners: bool,
     /// The check of every kept frame against the reference photo after the solve.
     #[serde(default)]
     pub self_check: crate::selfcheck::SelfCheckConfig,
@@ -153,6 +158,7 @@ impl Default for AlignConfig {
             sift_contrast: 0.02,
             match_reference: true,
             plane_ties: true,
+            marker_corners: true,
             self_check: crate::selfcheck::SelfCheckConfig::default(),
             reference_weight: 1.0,
             overlap_weight: 4.0,

@@ -48,6 +48,16 @@ impl Luminance {
         }
     }
 
+    /// From sRGB-coded luma samples (`width` x `height`, row-major).
+    pub fn from_grey(width: usize, height: usize, data: &[u8]) -> Self {
+        let lut = srgb8_to_linear_table();
+        Self {
+            w: width,
+            h: height,
+            data: data.iter().map(|&v| lut[v as usize]).collect(),
+        }
+    }
+
     fn at(&self, p: Vec2) -> Option<f64> {
         if !(p.x >= 0.0 && p.y >= 0.0 && p.x <= (self.w - 1) as f64 && p.y <= (self.h - 1) as f64) {
             return None;
@@ -95,14 +105,40 @@ fn intersect(a: Line, b: Line) -> Option<Vec2> {
 /// Refine the four corners of a marker with `cells` cells per side (border included).
 /// Returns the input unchanged where an edge cannot be measured.
 pub fn refine_corners(lum: &Luminance, corners: &[Vec2; 4], cells: usize) -> [Vec2; 4] {
+    let found = visible_corners(lum, corners, cells, 3, f64::INFINITY);
+    std::array::from_fn(|k| found[k].unwrap_or(corners[k]))
+}
+
+/// How far across a predicted side the edge is searched, pixels: a third of a border
+/// cell, far enough for a corner error of a pixel, close enough to stay on the ink
+/// border.
+pub fn search_reach(corners: &[Vec2; 4], cells: usize) -> f64 {
+    let side = (0..4)
+        .map(|k| (corners[(k + 1) % 4] - corners[k]).norm())
+        .sum::<f64>()
+        / 4.0;
+    (side / cells.max(3) as f64 / 3.0).clamp(1.5, 6.0)
+}
+
+/// The corners of a marker predicted at `corners` that the image shows, each where
+/// the two sides meeting there cross: a side is located on at least `min_points`
+/// edge points (only the part of it in the image counts, so a marker cut by the
+/// image's edge still gives the corners it shows) whose line fit leaves at most
+/// `max_rms` pixels. `None` where a side cannot be measured or the crossing lies over
+/// twice [`search_reach`] from the prediction.
+pub fn visible_corners(
+    lum: &Luminance,
+    corners: &[Vec2; 4],
+    cells: usize,
+    min_points: usize,
+    max_rms: f64,
+) -> [Option<Vec2>; 4] {
     let centre = corners.iter().fold(Vec2::zeros(), |a, p| a + p) / 4.0;
     let side = (0..4)
         .map(|k| (corners[(k + 1) % 4] - corners[k]).norm())
         .sum::<f64>()
         / 4.0;
-    // Search across the edge within a third of a border cell: far enough for a
-    // corner error of a pixel, close enough to stay on the ink border.
-    let reach = (side / cells.max(3) as f64 / 3.0).clamp(1.5, 6.0);
+    let reach = search_reach(corners, cells);
     let mut lines = Vec::with_capacity(4);
     for k in 0..4 {
         let (a, b) = (corners[k], corners[(k + 1) % 4]);
@@ -145,18 +181,18 @@ pub fn refine_corners(lum: &Luminance, corners: &[Vec2; 4], cells: usize) -> [Ve
                 pts.push(base + n * (w[0].0 + f * (w[1].0 - w[0].0)));
             }
         }
-        lines.push(fit_line(&pts));
+        let line = (pts.len() >= min_points)
+            .then(|| fit_line(&pts))
+            .flatten()
+            .filter(|l| {
+                let ss: f64 = pts.iter().map(|p| (l.n.dot(p) - l.d).powi(2)).sum();
+                (ss / pts.len() as f64).sqrt() <= max_rms
+            });
+        lines.push(line);
     }
-    let mut out = *corners;
-    for k in 0..4 {
+    std::array::from_fn(|k| {
         // Corner k joins side k-1 (from corner k-1 to k) and side k.
-        if let (Some(l0), Some(l1)) = (lines[(k + 3) % 4], lines[k]) {
-            if let Some(p) = intersect(l0, l1) {
-                if (p - corners[k]).norm() < 2.0 * reach {
-                    out[k] = p;
-                }
-            }
-        }
-    }
-    out
+        let (l0, l1) = (lines[(k + 3) % 4]?, lines[k]?);
+        intersect(l0, l1).filter(|p| (p - corners[k]).norm() < 2.0 * reach)
+    })
 }

@@ -352,6 +352,7 @@ impl Matched {
             support,
             marker_hunt: None,
             plane_ties: None,
+            marker_corners: None,
             plane_tied: Default::default(),
         })
     }

@@ -27,7 +27,8 @@ mod global;
 pub mod hunt;
 mod matching;
 pub mod output;
-pub mod patch;
+pub mod partial;
+mod patch;
 pub mod pose;
 pub mod recheck;
 pub mod reference;
@@ -228,6 +229,10 @@ pub struct AlignSummary {
     /// blocks, solved again), where they ran.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub plane_ties: Option<ties::PlaneTieSummary>,
+    /// Corners of markers that detection missed (cut by a frame's edge, or blurred),
+    /// found where the solved maps put them, where they ran.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub marker_corners: Option<partial::MarkerCornerSummary>,
 }
 
 /// What a video's stream says about its colours and what decoding did with it.
@@ -538,7 +543,7 @@ fn register_and_write(
         }
     };
 
-    let (result, matched) = matching::register(
+    let (result, mut matched) = matching::register(
         matching::Streams {
             frames: decoded,
             ordered,
@@ -553,6 +558,34 @@ fn register_and_write(
     )?;
     let mut result = result;
     result.marker_hunt = trace.marker_hunt.clone();
+    if cfg.marker_corners {
+        let crops = std::mem::take(&mut matched.marker_crops);
+        let (found, summary) = partial::marker_corners(
+            &matched.frames,
+            &crops,
+            &result,
+            &reference.markers,
+            dict.cells(),
+        )?;
+        drop(crops);
+        if !found.is_empty() {
+            for (i, a) in found {
+                matched.marker_anchors[i].extend(a);
+            }
+            result = matched.solve(
+                &Default::default(),
+                cfg,
+                progress,
+                &mut |n| timer.lap(n),
+                trace,
+            )?;
+            result.marker_hunt = trace.marker_hunt.clone();
+            timer.lap("marker corners");
+        }
+        if summary.frames_tried > 0 {
+            result.marker_corners = Some(summary);
+        }
+    }
     let sweep_cm = check_baseline(&result, &inputs.reference)?;
     trace.sweep_cm = Some(sweep_cm);
     let mut warnings = Vec::new();

@@ -15,6 +15,7 @@ use crate::coarse::*;
 use crate::config::{AlignConfig, FineMethod};
 use crate::fine::*;
 use crate::frames::FrameData;
+use crate::partial::{marker_crops, MarkerCrop};
 use crate::reference::ReferenceFrame;
 use crate::solve::SolveReport;
 use crate::trace::{AlignTrace, Fate};
@@ -87,6 +88,8 @@ pub struct Registration {
     pub plane_tied: BTreeSet<(u32, u64)>,
     /// What the plane ties did, where they ran (set by the caller).
     pub plane_ties: Option<crate::ties::PlaneTieSummary>,
+    /// What the marker corners did, where they ran (set by the caller).
+    pub marker_corners: Option<crate::partial::MarkerCornerSummary>,
 }
 
 /// Frames matched and anchored, ready for the global solve: what
@@ -101,6 +104,9 @@ pub struct Matched {
     pub(crate) anchors: Vec<Vec<([f64; 2], Vec2)>>,
     /// Per frame: marker corners, (frame px, plane cm).
     pub(crate) marker_anchors: Vec<Vec<(Vec2, Vec2)>>,
+    /// Per frame: its patch image around the markers its first map puts in view but
+    /// detection missed (`partial`; emptied once their corners are found).
+    pub(crate) marker_crops: Vec<Vec<MarkerCrop>>,
     /// Frames with a first map.
     pub(crate) registered: Vec<usize>,
     /// First plane_from_pixel map per frame.
@@ -418,15 +424,6 @@ pub fn match_frames(
         .map(|(f, &m)| (f.index, m, f.markers.len()))
         .collect();
     let anchors: Vec<Vec<([f64; 2], Vec2)>> = anchored.into_iter().map(|a| a.0).collect();
-    // The patch images (1 GB for 120 4K frames) are not needed any more, except by
-    // frames that the reference photo's matches did not anchor: plane ties match
-    // them with the reference photo again once the solve has placed them (`ties`).
-    let keep_grey = cfg.plane_ties && cfg.self_check.enabled;
-    for (f, a) in frames.iter_mut().zip(&anchors) {
-        if !(keep_grey && a.is_empty()) {
-            f.grey = None;
-        }
-    }
 
     // Marker anchors (eqs. 5-6).
     let world_markers: HashMap<i32, [Vec2; 4]> =
@@ -509,6 +506,25 @@ pub fn match_frames(
         }
     }
     let registered: Vec<usize> = (0..n).filter(|&i| init[i].is_some()).collect();
+    // Around the markers a frame's first map puts in view but detection missed, the
+    // patch image is kept for the marker corners (`partial`).
+    let marker_crops: Vec<Vec<MarkerCrop>> = frames
+        .par_iter()
+        .zip(&init)
+        .map(|(f, h)| match h {
+            Some(h) if cfg.marker_corners => marker_crops(f, h, &rf.markers),
+            _ => Vec::new(),
+        })
+        .collect();
+    // The patch images (1 GB for 120 4K frames) are not needed any more, except by
+    // frames that the reference photo's matches did not anchor: plane ties match
+    // them with the reference photo again once the solve has placed them (`ties`).
+    let keep_grey = cfg.plane_ties && cfg.self_check.enabled;
+    for (f, a) in frames.iter_mut().zip(&anchors) {
+        if !(keep_grey && a.is_empty()) {
+            f.grey = None;
+        }
+    }
     // A flash frame left without a map is disconnected where no frame of its
     // component was tied to the plane, else unregistered.
     let tied: BTreeSet<usize> = (0..n_flash)
@@ -557,6 +573,7 @@ pub fn match_frames(
         fine,
         anchors,
         marker_anchors,
+        marker_crops,
         registered,
         init,
         intrinsics,

@@ -619,6 +619,7 @@ pub fn write(
         support: reg.support.clone(),
         marker_hunt: reg.marker_hunt.clone(),
         plane_ties: reg.plane_ties.clone(),
+        marker_corners: reg.marker_corners.clone(),
     };
     #[derive(serde::Serialize)]
     struct Record<'a> {

@@ -270,6 +270,10 @@ struct AlignArgs {
     /// the blocks the self-check matched with the reference photo (a diagnostic)
     #[arg(long)]
     no_plane_ties: bool,
+    /// Do not look for the corners of markers that detection missed in a frame (cut by
+    /// the frame's edge, or blurred) where the frame's map puts them (a diagnostic)
+    #[arg(long)]
+    no_marker_corners: bool,
     #[command(flatten)]
     second: SecondArgs,
     /// Replace the output folder if it exists.
@@ -340,6 +344,9 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
     }
     if a.no_reference_matches {
         c.match_reference = false;
+    }
+    if a.no_marker_corners {
+        c.marker_corners = false;
     }
     if a.no_plane_ties {
         c.plane_ties = false;
@@ -498,6 +505,9 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     }
     if let Some(t) = &s.plane_ties {
         say!("{}", t.describe());
+    }
+    if let Some(m) = &s.marker_corners {
+        say!("{}", m.describe());
     }
     if let Some(line) = s.support.describe() {
         say!("support: {line}");
