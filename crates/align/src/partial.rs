@@ -98,16 +98,16 @@ pub(crate) fn marker_crops(
         else {
             continue;
         };
-        let side = (0..4).map(|k| (px[(k + 1) % 4] - px[k]).norm()).sum::<f64>() / 4.0;
+        let side = (0..4)
+            .map(|k| (px[(k + 1) % 4] - px[k]).norm())
+            .sum::<f64>()
+            / 4.0;
         // Room for a first map a few pixels off, and for the paper around the ink.
         let margin = 0.5 * side + 24.0;
         let lo = |k: usize| px.iter().map(|p| p[k]).fold(f64::INFINITY, f64::min) - margin;
         let hi = |k: usize| px.iter().map(|p| p[k]).fold(f64::NEG_INFINITY, f64::max) + margin;
         let (x0, y0) = (lo(0).max(0.0), lo(1).max(0.0));
-        let (x1, y1) = (
-            hi(0).min(grey.width as f64),
-            hi(1).min(grey.height as f64),
-        );
+        let (x1, y1) = (hi(0).min(grey.width as f64), hi(1).min(grey.height as f64));
         // Not in view at all, or absurdly large (a map far off).
         if !(x1 > x0 + 8.0 && y1 > y0 + 8.0) || side > grey.width.max(grey.height) as f64 {
             continue;
@@ -146,7 +146,10 @@ pub(crate) fn crop_corners(
     let (mut src, mut dst) = (Vec::new(), Vec::new());
     for j in 0..9 {
         for i in 0..9 {
-            let (u, v) = (f64::from(i) / 8.0 * 2.0 - 0.5, f64::from(j) / 8.0 * 2.0 - 0.5);
+            let (u, v) = (
+                f64::from(i) / 8.0 * 2.0 - 0.5,
+                f64::from(j) / 8.0 * 2.0 - 0.5,
+            );
             let q = world[0] + (world[1] - world[0]) * u + (world[3] - world[0]) * v;
             if let Some(p) = plane_to_pixel(q) {
                 src.push(q);
@@ -160,7 +163,10 @@ pub(crate) fn crop_corners(
     let Ok(h) = Homography::from_correspondences(&src, &dst) else {
         return (Vec::new(), false);
     };
-    let (o, s) = (Vec2::new(crop.origin.0 as f64, crop.origin.1 as f64), crop.scale);
+    let (o, s) = (
+        Vec2::new(crop.origin.0 as f64, crop.origin.1 as f64),
+        crop.scale,
+    );
     let Some(predicted) = world
         .iter()
         .map(|c| h.apply(*c).map(|p| to_grey(p, s) - o))
@@ -231,8 +237,9 @@ pub(crate) fn marker_corners(
                 continue;
             }
             tried = true;
-            let (found, partial) =
-                crop_corners(crop, w, cells, (f.width, f.height), &|q| m.plane_to_pixel(q));
+            let (found, partial) = crop_corners(crop, w, cells, (f.width, f.height), &|q| {
+                m.plane_to_pixel(q)
+            });
             if partial {
                 summary.partial_corners += found.len();
             }
@@ -327,7 +334,17 @@ mod tests {
         let first = Mat3::new(1.0 / s, 0.0, 0.03, 0.0, -1.0 / s, 3.0, 0.0, 0.0, 1.0);
         let crops = marker_crops(&f, &first, &[(7, world)]);
         assert_eq!(crops.len(), 1);
-        let solved = Homography(Mat3::new(1.0 / s, 0.0, 0.012, 0.0, -1.0 / s, 3.0, 0.0, 0.0, 1.0));
+        let solved = Homography(Mat3::new(
+            1.0 / s,
+            0.0,
+            0.012,
+            0.0,
+            -1.0 / s,
+            3.0,
+            0.0,
+            0.0,
+            1.0,
+        ));
         let inv = solved.inverse().unwrap();
         let to_px = |q: Vec2| {
             inv.apply(q)
@@ -366,7 +383,17 @@ mod tests {
         ];
         let first = Mat3::new(1.0 / s, 0.0, 0.0, 0.0, -1.0 / s, 3.0, 0.0, 0.0, 1.0);
         let crops = marker_crops(&f, &first, &[(7, world)]);
-        let off = Homography(Mat3::new(1.0 / s, 0.0, -0.2, 0.0, -1.0 / s, 3.0, 0.0, 0.0, 1.0));
+        let off = Homography(Mat3::new(
+            1.0 / s,
+            0.0,
+            -0.2,
+            0.0,
+            -1.0 / s,
+            3.0,
+            0.0,
+            0.0,
+            1.0,
+        ));
         let inv = off.inverse().unwrap();
         let (found, partial) = crop_corners(&crops[0], &world, 6, (200, 150), &|q| inv.apply(q));
         assert!(!partial);

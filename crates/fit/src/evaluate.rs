@@ -287,6 +287,9 @@ pub struct MaterialBreakdown {
     /// Per held-out light, each class's mean fitted radiance over its mean true
     /// radiance (0 for an empty class): a bias that survives averaging.
     pub mean_ratio: Vec<[f64; 5]>,
+    /// Each class's share of the diffuse albedo's squared error (after the global
+    /// scale, as `diffuse_rmse`).
+    pub diffuse_error_share: [f64; 5],
 }
 
 /// Class of the true material at truth pixel `t` (see [`MaterialBreakdown`]), without
@@ -342,6 +345,23 @@ pub fn relight_by_material(
         counts[k] += 1;
     }
     let total = idx.len().max(1) as f64;
+    let (mut ft, mut ff) = (0.0, 0.0);
+    for &(i, q, _) in &idx {
+        let t = sample(&truth.diffuse, &truth.grid, q);
+        for c in 0..3 {
+            ft += params[i].rho_d[c] * t[c];
+            ff += params[i].rho_d[c] * params[i].rho_d[c];
+        }
+    }
+    let scale = if ff > 0.0 { ft / ff } else { 1.0 };
+    let mut dse = [0.0f64; 5];
+    for &(i, q, k) in &idx {
+        let t = sample(&truth.diffuse, &truth.grid, q);
+        for c in 0..3 {
+            dse[k] += (scale * params[i].rho_d[c] - t[c]).powi(2);
+        }
+    }
+    let dall: f64 = dse.iter().sum();
     let mut error_share = Vec::new();
     let mut mean_ratio = Vec::new();
     for (img, light, camera) in &truth.holdout {
@@ -377,6 +397,7 @@ pub fn relight_by_material(
         shares: counts.map(|c| c as f64 / total),
         error_share,
         mean_ratio,
+        diffuse_error_share: dse.map(|e| if dall > 0.0 { e / dall } else { 0.0 }),
     }
 }
 
