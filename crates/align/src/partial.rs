@@ -12,6 +12,8 @@
 //! tightly, and the corner lies within a third of a border cell of the prediction
 //! (so an edge inside the marker's pattern, a whole cell away, is never taken). The
 //! corners found become marker anchors of their frame, and the solve runs again.
+//! Only frames without reference-photo feature matches are searched: those with them
+//! are held by hundreds of anchors, which a few corners do not move.
 //!
 //! The fine-scale luminance of a frame is kept only around the markers its first map
 //! puts in view ([`marker_crops`]), so this costs no memory on frames far from them.
@@ -52,7 +54,8 @@ pub struct MarkerCrop {
 /// What the marker corners did, as `align.json` records it.
 #[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize)]
 pub struct MarkerCornerSummary {
-    /// Kept frames that showed part (or all) of a marker that detection did not find.
+    /// Kept frames without reference-photo feature matches of their own that showed
+    /// part (or all) of a marker that detection did not find.
     pub frames_tried: usize,
     /// Frames that got corners.
     pub frames: usize,
@@ -66,8 +69,16 @@ impl MarkerCornerSummary {
     /// One line for the summary.
     pub fn describe(&self) -> String {
         format!(
-            "marker corners: {} corners found in {} of {} kept frames that showed a marker detection missed ({} of markers cut by the frame's edge); solved again with them",
-            self.corners, self.frames, self.frames_tried, self.partial_corners
+            "marker corners: {} corners found in {} of {} kept frames without reference-photo feature matches that showed a marker detection missed ({} of markers cut by the frame's edge){}",
+            self.corners,
+            self.frames,
+            self.frames_tried,
+            self.partial_corners,
+            if self.corners > 0 {
+                "; solved again with them"
+            } else {
+                ""
+            }
         )
     }
 }
@@ -200,7 +211,12 @@ pub(crate) fn crop_corners(
     (corners, partial)
 }
 
-/// Corners of the markers that detection missed in the kept frames of `reg`, from
+/// Marker anchors found in one frame: its index among the matched frames, and
+/// (frame pixel, plane cm) per corner.
+pub(crate) type FrameCorners = (usize, Vec<(Vec2, Vec2)>);
+
+/// Corners of the markers that detection missed in the kept frames of `reg` without
+/// reference-photo feature matches of their own, from
 /// their crops (`crops`, per frame of `frames`, the matched frames): per matched
 /// frame index, the anchors (frame pixel, plane cm), with what was done.
 pub(crate) fn marker_corners(
@@ -209,7 +225,7 @@ pub(crate) fn marker_corners(
     reg: &Registration,
     world: &[(i32, [Vec2; 4])],
     cells: usize,
-) -> Result<(Vec<(usize, Vec<(Vec2, Vec2)>)>, MarkerCornerSummary), crate::AlignError> {
+) -> Result<(Vec<FrameCorners>, MarkerCornerSummary), crate::AlignError> {
     let index: HashMap<(u32, u64), usize> = frames
         .iter()
         .enumerate()
@@ -220,6 +236,12 @@ pub(crate) fn marker_corners(
     let mut summary = MarkerCornerSummary::default();
     let mut out = Vec::new();
     for (f, m) in reg.frames.iter().zip(&mappings) {
+        // Frames with reference-photo feature matches are anchored by hundreds of
+        // them; a few corners moved nothing there (4K tiles: 31 corners in 14 frames,
+        // the same error to four digits) and cost a solve.
+        if reg.reference_tied.contains(&(f.stream, f.index)) {
+            continue;
+        }
         let Some(&i) = index.get(&(f.stream, f.index)) else {
             continue;
         };

@@ -501,7 +501,7 @@ mod tests {
         let mut mask = ImageF32::new(grid.width, grid.height, 3);
         mask.data.fill(1.0);
         let truth = Truth {
-            grid: grid.clone(),
+            grid,
             diffuse: map(&|p| p.rho_d.map(|v| v as f32)),
             specular: map(&|p| p.rho_s.map(|v| v as f32)),
             roughness: map(&|p| [p.alpha_x as f32, p.alpha_y as f32, 0.0]),

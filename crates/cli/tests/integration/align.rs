@@ -600,6 +600,13 @@ fn plane_ties_register_frames_the_reference_photo_features_do_not_tie() {
     let kept = rec["summary"]["frames"]["kept"].as_u64().unwrap();
     assert_eq!(ties["guided_frames"].as_u64().unwrap(), kept, "{ties}");
     assert!(ties["offset_after_mm"].as_f64().unwrap() < 0.25, "{ties}");
+    // Frames that show part of a marker get its corners (4 in 3 frames, measured).
+    let corners = &rec["summary"]["marker_corners"];
+    assert!(corners["corners"].as_u64().unwrap() >= 2, "{corners}");
+    assert!(
+        corners["partial_corners"].as_u64().unwrap() >= 1,
+        "{corners}"
+    );
     let v = alignment_accuracy(out.as_path(), &cap);
     let get = |k: &str| v[k].as_f64().unwrap();
     assert!(get("align_error_px_median") < 0.25, "{v}");
