@@ -338,6 +338,21 @@ mod tests {
         }
     }
 
+    /// The corners of the test marker (1.2 cm) with its top-left at (mx, my), cm.
+    fn square(mx: f64, my: f64) -> [Vec2; 4] {
+        [
+            Vec2::new(mx, my),
+            Vec2::new(mx + 1.2, my),
+            Vec2::new(mx + 1.2, my - 1.2),
+            Vec2::new(mx, my - 1.2),
+        ]
+    }
+
+    /// Plane from pixel of a frame at `s` px/cm, its top-left pixel at (x0, 3) cm.
+    fn map(s: f64, x0: f64) -> Mat3 {
+        Mat3::new(1.0 / s, 0.0, x0, 0.0, -1.0 / s, 3.0, 0.0, 0.0, 1.0)
+    }
+
     #[test]
     fn corners_of_a_marker_cut_by_the_frame_edge_are_found_and_only_those_shown() {
         // 50 px/cm; the frame sees x in [0, 4] cm, y in [3, 0] cm; the marker (1.2 cm)
@@ -346,27 +361,12 @@ mod tests {
         let (mx, my) = (-0.5, 2.0);
         let grey = render(200, 150, s, 0.0, 3.0, mx, my);
         let f = frame(grey);
-        let world = [
-            Vec2::new(mx, my),
-            Vec2::new(mx + 1.2, my),
-            Vec2::new(mx + 1.2, my - 1.2),
-            Vec2::new(mx, my - 1.2),
-        ];
+        let world = square(mx, my);
         // The first map is 1.5 px off (x); the solved map is 0.6 px off.
-        let first = Mat3::new(1.0 / s, 0.0, 0.03, 0.0, -1.0 / s, 3.0, 0.0, 0.0, 1.0);
+        let first = map(s, 0.03);
         let crops = marker_crops(&f, &first, &[(7, world)]);
         assert_eq!(crops.len(), 1);
-        let solved = Homography(Mat3::new(
-            1.0 / s,
-            0.0,
-            0.012,
-            0.0,
-            -1.0 / s,
-            3.0,
-            0.0,
-            0.0,
-            1.0,
-        ));
+        let solved = Homography(map(s, 0.012));
         let inv = solved.inverse().unwrap();
         let to_px = |q: Vec2| {
             inv.apply(q)
@@ -397,25 +397,10 @@ mod tests {
         let s = 50.0;
         let (mx, my) = (1.0, 2.0);
         let f = frame(render(200, 150, s, 0.0, 3.0, mx, my));
-        let world = [
-            Vec2::new(mx, my),
-            Vec2::new(mx + 1.2, my),
-            Vec2::new(mx + 1.2, my - 1.2),
-            Vec2::new(mx, my - 1.2),
-        ];
-        let first = Mat3::new(1.0 / s, 0.0, 0.0, 0.0, -1.0 / s, 3.0, 0.0, 0.0, 1.0);
+        let world = square(mx, my);
+        let first = map(s, 0.0);
         let crops = marker_crops(&f, &first, &[(7, world)]);
-        let off = Homography(Mat3::new(
-            1.0 / s,
-            0.0,
-            -0.2,
-            0.0,
-            -1.0 / s,
-            3.0,
-            0.0,
-            0.0,
-            1.0,
-        ));
+        let off = Homography(map(s, -0.2));
         let inv = off.inverse().unwrap();
         let (found, partial) = crop_corners(&crops[0], &world, 6, (200, 150), &|q| inv.apply(q));
         assert!(!partial);
