@@ -290,6 +290,10 @@ pub struct MaterialBreakdown {
     /// Each class's share of the diffuse albedo's squared error (after the global
     /// scale, as `diffuse_rmse`).
     pub diffuse_error_share: [f64; 5],
+    /// Per class, the mean fitted over the mean true value of the specular albedo
+    /// (channel mean, after the global scale), `alpha_x` and `alpha_y` (0 for an empty
+    /// class).
+    pub lobe_ratio: [[f64; 3]; 5],
 }
 
 /// Class of the true material at truth pixel `t` (see [`MaterialBreakdown`]), without
@@ -362,6 +366,27 @@ pub fn relight_by_material(
         }
     }
     let dall: f64 = dse.iter().sum();
+    // Per class: fitted and true sums of rho_s, alpha_x, alpha_y.
+    let mut lobe = [[0.0f64; 6]; 5];
+    let rc = truth.roughness.channels;
+    for &(i, q, k) in &idx {
+        let t = sample(&truth.specular, &truth.grid, q);
+        let p = truth.grid.to_pixel(q);
+        let (c, r) = (
+            (p.x.round() as i64).clamp(0, tw - 1) as usize,
+            (p.y.round() as i64).clamp(0, th - 1) as usize,
+        );
+        let a = &truth.roughness.data[rc * (r * tw as usize + c)..];
+        let f = &params[i];
+        let l = &mut lobe[k];
+        l[0] += scale * (f.rho_s[0] + f.rho_s[1] + f.rho_s[2]) / 3.0;
+        l[1] += (t[0] + t[1] + t[2]) / 3.0;
+        l[2] += f.alpha_x;
+        l[3] += f64::from(a[0]);
+        l[4] += f.alpha_y;
+        l[5] += f64::from(a[1]);
+    }
+    let ratio = |a: f64, b: f64| if b > 0.0 { a / b } else { 0.0 };
     let mut error_share = Vec::new();
     let mut mean_ratio = Vec::new();
     for (img, light, camera) in &truth.holdout {
@@ -398,6 +423,7 @@ pub fn relight_by_material(
         error_share,
         mean_ratio,
         diffuse_error_share: dse.map(|e| if dall > 0.0 { e / dall } else { 0.0 }),
+        lobe_ratio: lobe.map(|l| [ratio(l[0], l[1]), ratio(l[2], l[3]), ratio(l[4], l[5])]),
     }
 }
 
