@@ -2,6 +2,8 @@
 //! per-pixel average colour in CIE L*a*b*, with k chosen by the elbow of the summed
 //! squared error over a range of k.
 
+use std::collections::VecDeque;
+
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
@@ -170,6 +172,40 @@ pub fn initial_clusters(
         sse,
         centres,
         labels,
+    }
+}
+
+/// Give every unobserved pixel the cluster of its nearest observed pixel (4-connected
+/// breadth-first fill), so that no output pixel is left without a BRDF.
+pub(crate) fn fill_unobserved(
+    grid: &svbrdf_core::plane::PlaneGrid,
+    cluster: &mut [u32],
+    known: &[bool],
+) {
+    let (w, h) = (grid.width, grid.height);
+    let mut seen = known.to_vec();
+    let mut queue: VecDeque<usize> = (0..w * h).filter(|&p| known[p]).collect();
+    while let Some(p) = queue.pop_front() {
+        let (x, y) = (p % w, p / w);
+        let mut push = |q: usize| {
+            if !seen[q] {
+                seen[q] = true;
+                cluster[q] = cluster[p];
+                queue.push_back(q);
+            }
+        };
+        if x > 0 {
+            push(p - 1);
+        }
+        if x + 1 < w {
+            push(p + 1);
+        }
+        if y > 0 {
+            push(p - w);
+        }
+        if y + 1 < h {
+            push(p + w);
+        }
     }
 }
 

@@ -21,28 +21,34 @@ pub mod config;
 pub mod evaluate;
 pub mod fast;
 pub mod holdout;
+mod intensity;
 pub mod observations;
 pub mod output;
+mod refine;
 pub mod render;
+mod resources;
 pub mod select;
 pub mod solver;
+mod summary;
 pub mod tree;
 
-use std::collections::VecDeque;
 use std::time::Instant;
 
 use rayon::prelude::*;
-use serde::{Deserialize, Serialize};
 use svbrdf_core::brdf::{BrdfParams, ModelKind};
 use svbrdf_core::capture::RegisteredCapture;
-use svbrdf_core::plane::PlaneGrid;
 use svbrdf_core::progress::Progress;
 use svbrdf_core::CoreError;
 
 pub use config::FitConfig;
+pub use intensity::light_intensity;
 pub use observations::{ObservationBuilder, Observations};
+use refine::refine;
+pub(crate) use refine::BATCH;
+pub use resources::{available_memory_bytes, estimated_fit_bytes, output_grid, MAX_GRID_PIXELS};
+pub use summary::{ClusterInfo, FitSummary, FittedMaps, IntensitySource};
 
-use crate::solver::{Freedom, Problem, Sample};
+use crate::solver::Freedom;
 use crate::tree::Context;
 
 /// Errors of the appearance stage.
@@ -160,381 +166,13 @@ impl FitError {
     }
 }
 
-/// The output grid of a capture under a configuration.
-pub fn output_grid(capture: &RegisteredCapture, cfg: &FitConfig) -> Result<PlaneGrid, FitError> {
-    let px_per_cm = cfg.px_per_cm.unwrap_or(capture.px_per_cm);
-    // Size the grid from the region before allocating it: an absurd resolution must be
-    // refused with a figure, not end in an allocation failure minutes later.
-    let (w, h) = (
-        capture.region.width() * px_per_cm,
-        capture.region.height() * px_per_cm,
-    );
-    let need = estimated_fit_bytes(w * h, capture.frames.len());
-    let available = available_memory_bytes();
-    if need > available.unwrap_or(f64::INFINITY) || w * h > MAX_GRID_PIXELS {
-        return Err(FitError::invalid(
-            "output resolution",
-            format!(
-                "{px_per_cm} px/cm (a {:.0} x {:.0} pixel grid over the {:.2} x {:.2} cm region, needing about {})",
-                w,
-                h,
-                capture.region.width(),
-                capture.region.height(),
-                human_bytes(need)
-            ),
-            format!(
-                "a grid that fits in memory ({} available, at most {MAX_GRID_PIXELS:.0} pixels): lower --px-per-cm or px_per_cm in capture.json",
-                available.map_or("unknown".into(), human_bytes)
-            ),
-        ));
-    }
-    Ok(PlaneGrid::new(capture.region, px_per_cm)?)
-}
-
 /// Above this share of the observed surface whose highlight was never seen, the fit
 /// warns.
 pub const SPECULAR_UNSEEN_WARNING: f64 = 0.25;
 
-/// Largest output grid, pixels (a 20 x 20 cm region at 1000 px/cm).
-pub const MAX_GRID_PIXELS: f64 = 4.0e8;
-
-/// A rough upper estimate of the fit's peak memory, bytes: per-pixel maps and state
-/// (~400 B) plus the observations (about a third of the frames see each pixel, 24 B
-/// each; session 9's paper-preset fit: 4 Mpx, 115 frames, 4.5 GB measured, 5.3 GB
-/// estimated).
-pub fn estimated_fit_bytes(pixels: f64, frames: usize) -> f64 {
-    pixels * (400.0 + frames as f64 / 3.0 * 24.0)
-}
-
-/// Memory the system can give without swapping (Linux `MemAvailable`), bytes.
-pub fn available_memory_bytes() -> Option<f64> {
-    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let line = text.lines().find(|l| l.starts_with("MemAvailable:"))?;
-    let kb: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024.0)
-}
-
-fn human_bytes(b: f64) -> String {
-    match b {
-        b if b >= 1e12 => format!("{:.1} TB", b / 1e12),
-        b if b >= 1e9 => format!("{:.1} GB", b / 1e9),
-        b => format!("{:.0} MB", b / 1e6),
-    }
-}
-
-/// Fitted maps on the output grid.
-#[derive(Debug, Clone)]
-pub struct FittedMaps {
-    /// The grid.
-    pub grid: PlaneGrid,
-    /// BRDF per pixel (row-major).
-    pub params: Vec<BrdfParams>,
-    /// Final cluster per pixel.
-    pub cluster: Vec<u32>,
-    /// Observations per pixel (0: filled from the nearest observed pixel's cluster).
-    pub coverage: Vec<u32>,
-    /// Mean observed linear colour per pixel.
-    pub average: Vec<[f64; 3]>,
-    /// RMS re-rendering error per pixel (linear radiance).
-    pub residual: Vec<f32>,
-    /// Confidence per pixel in [0, 1]: diffuse, specular lobe, normal (see
-    /// [`confidence`]).
-    pub confidence: Vec<[f32; 3]>,
-    /// The final clusters, indexed by the ids in `cluster`.
-    pub clusters: Vec<ClusterInfo>,
-}
-
-/// One final cluster as written to `clusters.json`.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct ClusterInfo {
-    /// Id (value in the cluster map).
-    pub id: u32,
-    /// Pixels (observed ones; filled pixels are not counted).
-    pub pixels: usize,
-    /// Split level (0: an initial k-means cluster).
-    pub depth: usize,
-    /// The initial (k-means) cluster it was split from.
-    #[serde(default)]
-    pub initial: u32,
-    /// The cluster's BRDF (before per-pixel refinement).
-    pub params: BrdfParams,
-    /// The specular lobe of the last accepted lobe refit (`rho_s`, `alpha_x`,
-    /// `alpha_y`; its `rho_d` and normal are zero: those are per pixel in the maps),
-    /// which the maps use; absent where no refit ran or none was accepted (see
-    /// [`tree::refit_lobe`]).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub refitted_lobe: Option<BrdfParams>,
-    /// RMS error over its pixels' observations (at most `max_split_observations` per
-    /// pixel), linear radiance.
-    pub rmse: f64,
-    /// Whether its solver converged before the iteration cap.
-    pub converged: bool,
-    /// Shares of its pixels whose highlight peak was seen unclipped, only its flank or
-    /// clipped, or never (see [`confidence`]): a cluster none of whose pixels saw the
-    /// peak has a lobe fitted on flanks alone.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub specular_seen: Option<[f64; 3]>,
-}
-
-/// How the light intensity was obtained.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum IntensitySource {
-    /// Given on the command line or in the configuration.
-    Config,
-    /// From the registered capture (the simulator knows it).
-    Capture,
-    /// Normalised so that the bright end of the material has albedo
-    /// [`FitConfig::normalised_albedo`]: albedos are relative.
-    Normalised,
-}
-
-/// Figures of one fit.
-#[derive(Debug, Clone, Serialize, Deserialize)]
-pub struct FitSummary {
-    /// Model name.
-    pub model: String,
-    /// Light intensity used per channel.
-    pub light_intensity: [f64; 3],
-    /// Where it came from.
-    pub light_intensity_source: IntensitySource,
-    /// Observations used.
-    pub observations: usize,
-    /// Observations with a clipped channel (dropped, or kept as censored values with
-    /// `censor_clipped`).
-    pub clipped_observations: u64,
-    /// Share of the observations within [`NEAR_MIRROR_DEG`] of the mirror direction
-    /// (half vector against the plane's normal) that have a clipped channel: how
-    /// much of the highlights' peaks the video's range lost (`None` when clipped
-    /// observations were dropped, or none lie that close).
-    #[serde(default)]
-    pub clipped_near_mirror: Option<f64>,
-    /// Pixels with at least `min_observations`.
-    pub covered_pixels: usize,
-    /// All pixels.
-    pub pixels: usize,
-    /// Doubts about the input or the result, one sentence each (also on stderr, in
-    /// run.json and in the report).
-    #[serde(default)]
-    pub warnings: Vec<String>,
-    /// Chosen k of the initial clustering.
-    pub initial_clusters: usize,
-    /// Summed squared k-means error per k from `k_min`.
-    pub kmeans_sse: Vec<f64>,
-    /// Final clusters.
-    pub final_clusters: usize,
-    /// Deepest split level reached.
-    pub max_depth: usize,
-    /// Final clusters whose solver stopped at the iteration cap (reported, not fatal).
-    pub unconverged_clusters: Vec<u32>,
-    /// Whether the per-pixel refinement ran.
-    pub refined: bool,
-    /// Lobe refits run after the refinement (each after a refinement pass).
-    #[serde(default)]
-    pub lobe_refits: usize,
-    /// Clusters whose maps use a refitted lobe.
-    #[serde(default)]
-    pub refitted_clusters: usize,
-    /// Pixels with a lobe of their own (`refine_specular`: where the highlight's peak
-    /// was seen unclipped); the others carry their cluster's.
-    #[serde(default)]
-    pub pixel_lobes: usize,
-    /// RMS error of the cluster solutions (before refinement, linear), over the
-    /// observations the split decisions use: at most `max_split_observations` per pixel.
-    pub rmse_clusters: f64,
-    /// RMS re-rendering error of the final maps over every observation.
-    pub rmse_final: f64,
-    /// Re-rendering error per input frame.
-    pub frames: Vec<render::FrameError>,
-    /// What the confidence maps say (see [`confidence`]); absent in fits written
-    /// before they existed.
-    #[serde(default)]
-    pub confidence: Option<confidence::ConfidenceSummary>,
-    /// Final clusters none of whose pixels saw the highlight's peak unclipped: their
-    /// lobe rests on flanks, clipped peaks or nothing.
-    #[serde(default)]
-    pub clusters_without_peak: usize,
-    /// How the settings were chosen on held-out frames (absent when not validated).
-    #[serde(default)]
-    pub selection: Option<select::Selection>,
-    /// Seconds per step.
-    pub timings: Vec<(String, f64)>,
-}
-
 /// With an unknown intensity, the brightest initial cluster's `rho_d + rho_s` is kept
 /// at or below this.
 const ENERGY_MARGIN: f64 = 0.95;
-
-/// The light intensity: from the configuration, the capture, or normalised from the
-/// data (99th percentile of the per-pixel median of `pi L r^2 / cos(theta_i)` over
-/// channels, mapped to `normalised_albedo`).
-pub fn light_intensity(
-    obs: &Observations,
-    capture: &RegisteredCapture,
-    cfg: &FitConfig,
-) -> Result<([f64; 3], IntensitySource), FitError> {
-    if let Some(i) = cfg.light_intensity {
-        return Ok((i, IntensitySource::Config));
-    }
-    if let Some(i) = capture.light_intensity {
-        return Ok((i, IntensitySource::Capture));
-    }
-    // Only the flash camera's observations set the scale: a second (two-camera)
-    // stream sees the surface from other angles and would move the albedo scale, so
-    // one- and two-camera fits of the same capture would not be comparable.
-    let stream_of: std::collections::HashMap<u32, u32> = capture
-        .frames
-        .iter()
-        .map(|f| (f.id, capture.sources.get(f.source).map_or(0, |s| s.stream)))
-        .collect();
-    let flash: Vec<bool> = obs
-        .frames
-        .iter()
-        .map(|f| stream_of.get(&f.id).is_none_or(|s| *s == 0))
-        .collect();
-    let step = (obs.pixels() / 20_000).max(1);
-    let mut medians: Vec<f64> = (0..obs.pixels())
-        .step_by(step)
-        .filter(|&p| obs.range(p).any(|o| flash[usize::from(obs.frame[o])]))
-        .map(|p| {
-            let mut a: Vec<f64> = obs
-                .range(p)
-                .filter(|&o| flash[usize::from(obs.frame[o])])
-                .map(|o| {
-                    let lv = obs.light_view(p, o);
-                    let c = obs.color(o);
-                    std::f64::consts::PI * lv.light_dist2 / lv.light.z.max(0.05)
-                        * (c[0] + c[1] + c[2])
-                        / 3.0
-                })
-                .collect();
-            let m = a.len() / 2;
-            *a.select_nth_unstable_by(m, f64::total_cmp).1
-        })
-        .collect();
-    if medians.is_empty() {
-        return Err(FitError::NoData(
-            "no pixel of the region was observed".into(),
-        ));
-    }
-    let k = ((medians.len() - 1) as f64 * 0.99).round() as usize;
-    let p99 = *medians.select_nth_unstable_by(k, f64::total_cmp).1;
-    if p99 <= 0.0 || !p99.is_finite() {
-        return Err(FitError::NoData(
-            "every observation is black: cannot normalise the light intensity".into(),
-        ));
-    }
-    Ok((
-        [p99 / cfg.normalised_albedo; 3],
-        IntensitySource::Normalised,
-    ))
-}
-
-/// Give every unobserved pixel the cluster of its nearest observed pixel (4-connected
-/// breadth-first fill), so that no output pixel is left without a BRDF.
-fn fill_unobserved(grid: &PlaneGrid, cluster: &mut [u32], known: &[bool]) {
-    let (w, h) = (grid.width, grid.height);
-    let mut seen = known.to_vec();
-    let mut queue: VecDeque<usize> = (0..w * h).filter(|&p| known[p]).collect();
-    while let Some(p) = queue.pop_front() {
-        let (x, y) = (p % w, p / w);
-        let mut push = |q: usize| {
-            if !seen[q] {
-                seen[q] = true;
-                cluster[q] = cluster[p];
-                queue.push_back(q);
-            }
-        };
-        if x > 0 {
-            push(p - 1);
-        }
-        if x + 1 < w {
-            push(p + 1);
-        }
-        if y > 0 {
-            push(p - w);
-        }
-        if y + 1 < h {
-            push(p + w);
-        }
-    }
-}
-
-thread_local! {
-    /// Per-thread scratch of the Ward fast paths (one pixel's observations).
-    pub(crate) static BATCH: std::cell::RefCell<fast::PixelBatch> =
-        std::cell::RefCell::new(fast::PixelBatch::default());
-}
-
-/// Per-pixel refinement of diffuse albedo and normal (our addition to the paper: its
-/// maps are constant within a cluster). Each pixel is fitted to its own raw
-/// observations, pulled towards its cluster's solution by a prior as strong as
-/// `refine_prior` average observations of each parameter.
-/// The normal's trust region is centred on `anchor(pixel)` (the cluster's normal
-/// angles), so that a second pass cannot walk further from the cluster than the first.
-fn refine(
-    ctx: &Context,
-    params: &mut [BrdfParams],
-    covered: &[bool],
-    anchor: impl Fn(usize) -> [f64; 2] + Sync,
-    iterations: usize,
-    freedom: Freedom,
-) {
-    let obs = ctx.obs;
-    let global = ctx.bounds();
-    let delta = ctx.cfg.refine_max_normal_change_deg.to_radians();
-    // The batch path refines diffuse albedo and normal only.
-    let ward_fast = ctx.model.kind() == ModelKind::Ward && freedom == Freedom::DIFFUSE_AND_NORMAL;
-    let prior = ctx.cfg.refine_prior;
-    let settings = fast::RefineSettings {
-        prior,
-        iterations,
-        robust: ctx.cfg.refine_robust,
-        rounds: ctx.cfg.refine_rounds,
-    };
-    params
-        .par_iter_mut()
-        .with_min_len(256)
-        .enumerate()
-        .for_each(|(px, p)| {
-            if !covered[px] {
-                return;
-            }
-            let a = anchor(px);
-            let mut bounds = global;
-            for k in 0..2 {
-                bounds.normal_lo[k] = (a[k] - delta).max(global.normal_lo[k]);
-                bounds.normal_hi[k] = (a[k] + delta).min(global.normal_hi[k]);
-            }
-            let q = if ward_fast {
-                BATCH.with_borrow_mut(|b| {
-                    b.gather(obs, px, 1);
-                    fast::refine_pixel(b, p, ctx.intensity, &bounds, &settings)
-                })
-            } else {
-                let samples: Vec<Sample> = obs
-                    .range(px)
-                    .map(|o| Sample {
-                        lv: obs.light_view(px, o),
-                        rgb: obs.color(o),
-                        weight: 1.0,
-                        clipped: obs.clipped(o),
-                    })
-                    .collect();
-                let prob = Problem {
-                    model: ctx.model,
-                    samples: &samples,
-                    intensity: ctx.intensity,
-                    bounds,
-                    tolerance: ctx.cfg.tolerance,
-                };
-                prob.solve_near(p, &freedom, prior, iterations).params
-            };
-            if q.is_physical() {
-                *p = q;
-            }
-        });
-}
 
 /// Fit maps to observations. `progress` sees the validation, clustering, fitting and
 /// refinement. With `select_folds` > 0 the settings are first chosen by how well they
@@ -653,7 +291,7 @@ pub(crate) fn fit_once(
             unconverged.push(i as u32);
         }
     }
-    fill_unobserved(&obs.grid, &mut cluster, &covered);
+    cluster::fill_unobserved(&obs.grid, &mut cluster, &covered);
     for (p, c) in params.iter_mut().zip(&cluster) {
         *p = leaves[*c as usize].params;
     }
@@ -806,7 +444,7 @@ pub(crate) fn fit_once(
         observations: obs.len(),
         clipped_observations: obs.clipped,
         clipped_near_mirror: if cfg.censor_clipped {
-            clipped_near_mirror(obs)
+            obs.clipped_near_mirror(NEAR_MIRROR_DEG)
         } else {
             None
         },
@@ -865,32 +503,12 @@ pub(crate) fn fit_once(
 /// near the mirror direction, degrees.
 pub const NEAR_MIRROR_DEG: f64 = 4.0;
 
-/// Share of the observations near the mirror direction that are clipped.
-fn clipped_near_mirror(obs: &Observations) -> Option<f64> {
-    let cos_limit = NEAR_MIRROR_DEG.to_radians().cos();
-    let (near, clipped) = (0..obs.pixels())
-        .into_par_iter()
-        .map(|p| {
-            let (mut n, mut c) = (0u64, 0u64);
-            for o in obs.range(p) {
-                let lv = obs.light_view(p, o);
-                let h = lv.light + lv.view;
-                if h.z / h.norm().max(1e-12) >= cos_limit {
-                    n += 1;
-                    c += u64::from(obs.clipped(o).iter().any(|x| *x));
-                }
-            }
-            (n, c)
-        })
-        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
-    (near > 0).then(|| clipped as f64 / near as f64)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use svbrdf_core::brdf::{BrdfModel, Prepared, Ward};
     use svbrdf_core::geometry::Vec3;
+    use svbrdf_core::plane::PlaneGrid;
     use svbrdf_core::plane::Region;
     use svbrdf_core::progress::NoProgress;
 

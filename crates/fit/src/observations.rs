@@ -97,6 +97,29 @@ impl Observations {
         self.start[px]..self.start[px + 1]
     }
 
+    /// Share of the observations within `near_deg` of the mirror direction (half
+    /// vector against the plane's normal) that have a clipped channel.
+    pub fn clipped_near_mirror(&self, near_deg: f64) -> Option<f64> {
+        let obs = self;
+        let cos_limit = near_deg.to_radians().cos();
+        let (near, clipped) = (0..obs.pixels())
+            .into_par_iter()
+            .map(|p| {
+                let (mut n, mut c) = (0u64, 0u64);
+                for o in obs.range(p) {
+                    let lv = obs.light_view(p, o);
+                    let h = lv.light + lv.view;
+                    if h.z / h.norm().max(1e-12) >= cos_limit {
+                        n += 1;
+                        c += u64::from(obs.clipped(o).iter().any(|x| *x));
+                    }
+                }
+                (n, c)
+            })
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+        (near > 0).then(|| clipped as f64 / near as f64)
+    }
+
     /// Observation count of a pixel.
     pub fn count(&self, px: usize) -> usize {
         self.start[px + 1] - self.start[px]

@@ -1,0 +1,149 @@
+//! What a fit returns: the maps on the output grid, the final clusters and the figures
+//! of the run (`fit.json`).
+
+use serde::{Deserialize, Serialize};
+use svbrdf_core::brdf::BrdfParams;
+use svbrdf_core::plane::PlaneGrid;
+
+use crate::{confidence, render, select};
+#[cfg(doc)]
+use crate::{tree, FitConfig, NEAR_MIRROR_DEG};
+
+/// Fitted maps on the output grid.
+#[derive(Debug, Clone)]
+pub struct FittedMaps {
+    /// The grid.
+    pub grid: PlaneGrid,
+    /// BRDF per pixel (row-major).
+    pub params: Vec<BrdfParams>,
+    /// Final cluster per pixel.
+    pub cluster: Vec<u32>,
+    /// Observations per pixel (0: filled from the nearest observed pixel's cluster).
+    pub coverage: Vec<u32>,
+    /// Mean observed linear colour per pixel.
+    pub average: Vec<[f64; 3]>,
+    /// RMS re-rendering error per pixel (linear radiance).
+    pub residual: Vec<f32>,
+    /// Confidence per pixel in [0, 1]: diffuse, specular lobe, normal (see
+    /// [`confidence`]).
+    pub confidence: Vec<[f32; 3]>,
+    /// The final clusters, indexed by the ids in `cluster`.
+    pub clusters: Vec<ClusterInfo>,
+}
+
+/// One final cluster as written to `clusters.json`.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct ClusterInfo {
+    /// Id (value in the cluster map).
+    pub id: u32,
+    /// Pixels (observed ones; filled pixels are not counted).
+    pub pixels: usize,
+    /// Split level (0: an initial k-means cluster).
+    pub depth: usize,
+    /// The initial (k-means) cluster it was split from.
+    #[serde(default)]
+    pub initial: u32,
+    /// The cluster's BRDF (before per-pixel refinement).
+    pub params: BrdfParams,
+    /// The specular lobe of the last accepted lobe refit (`rho_s`, `alpha_x`,
+    /// `alpha_y`; its `rho_d` and normal are zero: those are per pixel in the maps),
+    /// which the maps use; absent where no refit ran or none was accepted (see
+    /// [`tree::refit_lobe`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub refitted_lobe: Option<BrdfParams>,
+    /// RMS error over its pixels' observations (at most `max_split_observations` per
+    /// pixel), linear radiance.
+    pub rmse: f64,
+    /// Whether its solver converged before the iteration cap.
+    pub converged: bool,
+    /// Shares of its pixels whose highlight peak was seen unclipped, only its flank or
+    /// clipped, or never (see [`confidence`]): a cluster none of whose pixels saw the
+    /// peak has a lobe fitted on flanks alone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub specular_seen: Option<[f64; 3]>,
+}
+
+/// How the light intensity was obtained.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum IntensitySource {
+    /// Given on the command line or in the configuration.
+    Config,
+    /// From the registered capture (the simulator knows it).
+    Capture,
+    /// Normalised so that the bright end of the material has albedo
+    /// [`FitConfig::normalised_albedo`]: albedos are relative.
+    Normalised,
+}
+
+/// Figures of one fit.
+#[derive(Debug, Clone, Serialize, Deserialize)]
+pub struct FitSummary {
+    /// Model name.
+    pub model: String,
+    /// Light intensity used per channel.
+    pub light_intensity: [f64; 3],
+    /// Where it came from.
+    pub light_intensity_source: IntensitySource,
+    /// Observations used.
+    pub observations: usize,
+    /// Observations with a clipped channel (dropped, or kept as censored values with
+    /// `censor_clipped`).
+    pub clipped_observations: u64,
+    /// Share of the observations within [`NEAR_MIRROR_DEG`] of the mirror direction
+    /// (half vector against the plane's normal) that have a clipped channel: how
+    /// much of the highlights' peaks the video's range lost (`None` when clipped
+    /// observations were dropped, or none lie that close).
+    #[serde(default)]
+    pub clipped_near_mirror: Option<f64>,
+    /// Pixels with at least `min_observations`.
+    pub covered_pixels: usize,
+    /// All pixels.
+    pub pixels: usize,
+    /// Doubts about the input or the result, one sentence each (also on stderr, in
+    /// run.json and in the report).
+    #[serde(default)]
+    pub warnings: Vec<String>,
+    /// Chosen k of the initial clustering.
+    pub initial_clusters: usize,
+    /// Summed squared k-means error per k from `k_min`.
+    pub kmeans_sse: Vec<f64>,
+    /// Final clusters.
+    pub final_clusters: usize,
+    /// Deepest split level reached.
+    pub max_depth: usize,
+    /// Final clusters whose solver stopped at the iteration cap (reported, not fatal).
+    pub unconverged_clusters: Vec<u32>,
+    /// Whether the per-pixel refinement ran.
+    pub refined: bool,
+    /// Lobe refits run after the refinement (each after a refinement pass).
+    #[serde(default)]
+    pub lobe_refits: usize,
+    /// Clusters whose maps use a refitted lobe.
+    #[serde(default)]
+    pub refitted_clusters: usize,
+    /// Pixels with a lobe of their own (`refine_specular`: where the highlight's peak
+    /// was seen unclipped); the others carry their cluster's.
+    #[serde(default)]
+    pub pixel_lobes: usize,
+    /// RMS error of the cluster solutions (before refinement, linear), over the
+    /// observations the split decisions use: at most `max_split_observations` per pixel.
+    pub rmse_clusters: f64,
+    /// RMS re-rendering error of the final maps over every observation.
+    pub rmse_final: f64,
+    /// Re-rendering error per input frame.
+    pub frames: Vec<render::FrameError>,
+    /// What the confidence maps say (see [`confidence`]); absent in fits written
+    /// before they existed.
+    #[serde(default)]
+    pub confidence: Option<confidence::ConfidenceSummary>,
+    /// Final clusters none of whose pixels saw the highlight's peak unclipped: their
+    /// lobe rests on flanks, clipped peaks or nothing.
+    #[serde(default)]
+    pub clusters_without_peak: usize,
+    /// How the settings were chosen on held-out frames (absent when not validated).
+    #[serde(default)]
+    pub selection: Option<select::Selection>,
+    /// Seconds per step.
+    pub timings: Vec<(String, f64)>,
+}
