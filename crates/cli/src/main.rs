@@ -18,6 +18,7 @@ macro_rules! say {
     };
 }
 
+mod accuracy;
 mod bench;
 mod fit_cmd;
 mod progress;
