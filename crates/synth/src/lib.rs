@@ -26,6 +26,7 @@ mod cameras;
 pub mod config;
 pub mod material;
 mod noise;
+mod presets;
 pub mod render;
 pub mod scene;
 pub mod trajectory;
