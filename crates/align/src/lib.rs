@@ -560,7 +560,7 @@ fn register_and_write(
     result.marker_hunt = trace.marker_hunt.clone();
     if cfg.marker_corners {
         let crops = std::mem::take(&mut matched.marker_crops);
-        let (found, summary) = partial::marker_corners(
+        let (found, mut summary) = partial::marker_corners(
             &matched.frames,
             &crops,
             &result,
@@ -569,8 +569,8 @@ fn register_and_write(
         )?;
         drop(crops);
         if !found.is_empty() {
-            for (i, a) in found {
-                matched.marker_anchors[i].extend(a);
+            for (i, a) in &found {
+                matched.marker_anchors[*i].extend(a.iter().copied());
             }
             result = matched.solve(
                 &Default::default(),
@@ -580,6 +580,7 @@ fn register_and_write(
                 trace,
             )?;
             result.marker_hunt = trace.marker_hunt.clone();
+            summary.residual_px = partial::residuals(&matched.frames, &found, &result)?;
             timer.lap("marker corners");
         }
         if summary.frames_tried > 0 {

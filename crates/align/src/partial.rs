@@ -63,6 +63,11 @@ pub struct MarkerCornerSummary {
     pub corners: usize,
     /// Of those, corners of markers the frame showed only in part.
     pub partial_corners: usize,
+    /// After the solve with them, how far the solved maps put the corners from where
+    /// they were found: median and largest, frame pixels (a corner found wrong would
+    /// stand out against the frame's other anchors).
+    #[serde(default)]
+    pub residual_px: Option<[f64; 2]>,
 }
 
 impl MarkerCornerSummary {
@@ -74,10 +79,11 @@ impl MarkerCornerSummary {
             self.frames,
             self.frames_tried,
             self.partial_corners,
-            if self.corners > 0 {
-                "; solved again with them"
-            } else {
-                ""
+            match self.residual_px {
+                Some([m, x]) => format!(
+                    "; solved again with them, which then lie {m:.2} px (median), at most {x:.2} px from where the maps put them"
+                ),
+                None => String::new(),
             }
         )
     }
@@ -275,6 +281,43 @@ pub(crate) fn marker_corners(
         }
     }
     Ok((out, summary))
+}
+
+/// How far the maps of `reg` put each found corner (`found`, per matched frame index
+/// into `frames`) from where it was found, frame pixels: median and largest (`None`
+/// without corners in kept frames).
+pub(crate) fn residuals(
+    frames: &[FrameData],
+    found: &[FrameCorners],
+    reg: &Registration,
+) -> Result<Option<[f64; 2]>, crate::AlignError> {
+    let kept: HashMap<(u32, u64), usize> = reg
+        .frames
+        .iter()
+        .enumerate()
+        .map(|(k, f)| ((f.stream, f.index), k))
+        .collect();
+    let mappings = crate::checks::prepared_mappings(reg)?;
+    let mut r: Vec<f64> = Vec::new();
+    for (i, anchors) in found {
+        let Some(m) = frames
+            .get(*i)
+            .and_then(|f| kept.get(&(f.stream, f.index)))
+            .and_then(|&k| mappings.get(k))
+        else {
+            continue;
+        };
+        r.extend(
+            anchors
+                .iter()
+                .filter_map(|(p, x)| m.plane_to_pixel(*x).map(|q| (q - p).norm())),
+        );
+    }
+    if r.is_empty() {
+        return Ok(None);
+    }
+    r.sort_by(f64::total_cmp);
+    Ok(Some([r[r.len() / 2], r[r.len() - 1]]))
 }
 
 #[cfg(test)]
