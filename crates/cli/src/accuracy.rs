@@ -24,6 +24,9 @@ pub fn align_accuracy(
     let stream = &truth.streams[0];
     // Per camera stream: plane errors (px), camera and light position errors (mm).
     let mut errs = [Vec::new(), Vec::new()];
+    // The flash stream's displacements (ours - truth, output px), for the part of the
+    // error that is one shift of the whole panorama.
+    let mut shifts: Vec<Vec2> = Vec::new();
     let mut cam_errs = [Vec::new(), Vec::new()];
     let mut light_errs = [Vec::new(), Vec::new()];
     let mut per_frame: Vec<serde_json::Value> = Vec::new();
@@ -77,6 +80,9 @@ pub fn align_accuracy(
                     continue;
                 }
                 errs.push((ours - true_p).norm() * cap.px_per_cm);
+                if s == 0 {
+                    shifts.push((ours - true_p) * cap.px_per_cm);
+                }
             }
         }
         let mut mine: Vec<f64> = errs[before..].to_vec();
@@ -107,6 +113,8 @@ pub fn align_accuracy(
         .iter()
         .filter_map(|v| Some((v[0].as_u64()?, v[2].as_f64()?)))
         .max_by(|a, b| a.1.total_cmp(&b.1));
+    let mean_shift = shifts.iter().fold(Vec2::zeros(), |a, d| a + d) / shifts.len().max(1) as f64;
+    let mut unshifted: Vec<f64> = shifts.iter().map(|d| (d - mean_shift).norm()).collect();
     let [mut errs, mut errs2] = errs;
     let [mut cam_errs, mut cam_errs2] = cam_errs;
     let [mut light_errs, mut light_errs2] = light_errs;
@@ -119,6 +127,10 @@ pub fn align_accuracy(
         "samples": errs.len(),
         "align_error_px_median": q(&mut errs, 0.5),
         "align_error_px_p95": q(&mut errs, 0.95),
+        // One shift of every frame (the panorama against the markers) moves the maps
+        // and nothing else; what is left without it is what bends them.
+        "mean_shift_px": [mean_shift.x, mean_shift.y],
+        "align_error_px_median_without_mean_shift": q(&mut unshifted, 0.5),
         "camera_error_mm_median": q(&mut cam_errs, 0.5),
         "camera_error_mm_p95": q(&mut cam_errs, 0.95),
         "flash_error_mm_median": q(&mut light_errs, 0.5),
