@@ -27,6 +27,7 @@ pub fn align_accuracy(
     // The flash stream's displacements (ours - truth, output px), for the part of the
     // error that is one shift of the whole panorama.
     let mut shifts: Vec<Vec2> = Vec::new();
+    let mut frame_shifts: Vec<serde_json::Value> = Vec::new();
     let mut cam_errs = [Vec::new(), Vec::new()];
     let mut light_errs = [Vec::new(), Vec::new()];
     let mut per_frame: Vec<serde_json::Value> = Vec::new();
@@ -59,6 +60,7 @@ pub fn align_accuracy(
         };
         let (errs, cam_errs, light_errs) = (&mut errs[s], &mut cam_errs[s], &mut light_errs[s]);
         let before = errs.len();
+        let shift_start = shifts.len();
         let cam = Camera {
             intrinsics: gt.camera.intrinsics,
             distortion: gt.camera.distortion,
@@ -84,6 +86,13 @@ pub fn align_accuracy(
                     shifts.push((ours - true_p) * cap.px_per_cm);
                 }
             }
+        }
+        if s == 0 && shifts.len() > shift_start {
+            let d = shifts[shift_start..]
+                .iter()
+                .fold(Vec2::zeros(), |a, d| a + d)
+                / (shifts.len() - shift_start) as f64;
+            frame_shifts.push(json!([idx, d.x, d.y]));
         }
         let mut mine: Vec<f64> = errs[before..].to_vec();
         mine.sort_by(f64::total_cmp);
@@ -131,6 +140,8 @@ pub fn align_accuracy(
         // and nothing else; what is left without it is what bends them.
         "mean_shift_px": [mean_shift.x, mean_shift.y],
         "align_error_px_median_without_mean_shift": q(&mut unshifted, 0.5),
+        // Per flash frame: its mean displacement (world x, y, output px).
+        "per_frame_mean_shift_px": frame_shifts,
         "camera_error_mm_median": q(&mut cam_errs, 0.5),
         "camera_error_mm_p95": q(&mut cam_errs, 0.95),
         "flash_error_mm_median": q(&mut light_errs, 0.5),
