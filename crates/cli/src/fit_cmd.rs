@@ -166,6 +166,13 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
             s.final_clusters
         );
     }
+    if let Some(g) = &s.turned_grain {
+        say!(
+            "anisotropy turned from the markers' axes on {:.0}% of the surface (median {:.0} degrees from +x towards +y; maps/roughness.exr B)",
+            100.0 * g.share,
+            g.median_deg
+        );
+    }
     say!(
         "light intensity {:.1} ({:?}); model {}",
         s.light_intensity[1],

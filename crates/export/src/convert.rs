@@ -10,7 +10,8 @@
 //! **glTF** (metallic-roughness, dielectric, `KHR_materials_specular`,
 //! `KHR_materials_anisotropy`): glTF's `alpha = roughness^2` is the *smaller* of the two
 //! GGX alphas; the larger one is `mix(alpha, 1, strength^2)` along the anisotropy
-//! direction (plane +x or +y per pixel). The specular colour is F0 = `rho_s` (at normal
+//! direction (per pixel: the tangent, plane +x turned by the fitted tangent rotation,
+//! or the bitangent, whichever has the larger alpha). The specular colour is F0 = `rho_s` (at normal
 //! incidence Ward's specular albedo and the Fresnel reflectance agree to first order),
 //! stored as `specularColorFactor * texture` with `dielectric F0 = 0.04` (ior 1.5). glTF
 //! scales the diffuse layer by `1 - max(F0)`, so the base colour is `rho_d / (1 -
@@ -68,7 +69,10 @@ pub fn gltf_texel(model: ModelKind, p: &BrdfParams) -> GltfTexel {
     } else {
         0.0
     };
-    let anisotropy_direction = if ax >= ay { [1.0, 0.0] } else { [0.0, 1.0] };
+    // The long axis of the lobe: the turned tangent where alpha_x is the larger, the
+    // turned bitangent otherwise.
+    let (sin, cos) = p.tangent_rotation.sin_cos();
+    let anisotropy_direction = if ax >= ay { [cos, sin] } else { [-sin, cos] };
     GltfTexel {
         base_color,
         roughness: lo.sqrt(),
@@ -103,6 +107,7 @@ mod tests {
                 alpha_y: a,
                 normal_theta_x: 0.0,
                 normal_theta_y: 0.0,
+                tangent_rotation: 0.0,
             };
             Prepared::new(p)
         };
@@ -168,6 +173,35 @@ mod tests {
     }
 
     #[test]
+    fn gltf_anisotropy_direction_turns_with_the_tangent() {
+        let p = BrdfParams {
+            alpha_x: 0.08,
+            alpha_y: 0.3,
+            tangent_rotation: 30f64.to_radians(),
+            ..BrdfParams::default()
+        };
+        // alpha_y is the larger: its axis, the bitangent, is plane +y turned by 30
+        // degrees towards -x.
+        let d = gltf_texel(ModelKind::Ward, &p).anisotropy_direction;
+        let want = [-(30f64.to_radians().sin()), 30f64.to_radians().cos()];
+        assert!(
+            (d[0] - want[0]).abs() < 1e-12 && (d[1] - want[1]).abs() < 1e-12,
+            "{d:?}"
+        );
+        let q = BrdfParams {
+            alpha_x: 0.3,
+            alpha_y: 0.08,
+            ..p
+        };
+        let d = gltf_texel(ModelKind::Ward, &q).anisotropy_direction;
+        let want = [30f64.to_radians().cos(), 30f64.to_radians().sin()];
+        assert!(
+            (d[0] - want[0]).abs() < 1e-12 && (d[1] - want[1]).abs() < 1e-12,
+            "{d:?}"
+        );
+    }
+
+    #[test]
     fn gltf_anisotropy_reproduces_both_alphas() {
         for (ax, ay) in [(0.1, 0.1), (0.3, 0.05), (0.04, 0.2), (0.5, 0.49)] {
             let p = BrdfParams {
@@ -177,6 +211,7 @@ mod tests {
                 alpha_y: ay,
                 normal_theta_x: 0.1,
                 normal_theta_y: -0.2,
+                tangent_rotation: 0.0,
             };
             let t = gltf_texel(ModelKind::Ggx, &p);
             let (along, across) = gltf_alphas(&t);

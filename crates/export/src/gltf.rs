@@ -350,6 +350,7 @@ pub(crate) mod tests {
                     alpha_y: 0.1,
                     normal_theta_x: 0.1 * (c as f64 * 0.7).sin(),
                     normal_theta_y: 0.1 * (r as f64 * 0.5).cos(),
+                    tangent_rotation: 0.0,
                 }
             })
             .collect();

@@ -9,7 +9,11 @@
 //! (Ward's lobe is Beckmann's with a simpler normalisation and no shadowing term); a
 //! GGX fit becomes a GGX lobe with the same alphas but without the Schlick rise of
 //! Fresnel towards grazing angles. `principled` was not used because its anisotropy
-//! cannot point along +y per pixel and its specular is not coloured.
+//! cannot point along +y per pixel and its specular is not coloured. Neither plugin
+//! turns the anisotropy per texel: a lobe whose tangent the fit turned
+//! (`tangent_rotation`) is written along the nearer of the plane's axes, so grooves at
+//! 30 degrees to the markers render at 0 and grooves at 60 at 90 (the glTF export
+//! keeps the angle).
 //!
 //! Scene units are the plane's centimetres, +z up, the quad at its measured place and a
 //! sphere beside it, a point light and a dim constant environment.
@@ -26,6 +30,13 @@ use svbrdf_core::CoreError;
 use crate::gltf::sphere_placement;
 use crate::mesh::{quad, sphere, Mesh};
 use crate::{ExportConfig, ExportError, MaterialMaps};
+
+/// Whether a lobe turned by `rotation` radians lies nearer the plane's y axis than its
+/// x axis (its alphas are then written swapped).
+fn axis_swapped(rotation: f64) -> bool {
+    let r = rotation.rem_euclid(std::f64::consts::PI);
+    (std::f64::consts::FRAC_PI_4..3.0 * std::f64::consts::FRAC_PI_4).contains(&r)
+}
 
 /// File name of the scene inside the export folder.
 pub const SCENE_FILE: &str = "scene.xml";
@@ -88,8 +99,15 @@ pub fn write(
             diffuse.data[3 * i + c] = (2.0 * p.rho_d[c].clamp(0.0, 1.0)) as f32;
             specular.data[3 * i + c] = (2.0 * p.rho_s[c].clamp(0.0, 1.0)) as f32;
         }
-        alpha_u.data[i] = p.alpha_x.clamp(1e-3, 1.0) as f32;
-        alpha_v.data[i] = p.alpha_y.clamp(1e-3, 1.0) as f32;
+        // roughconductor's alphas lie along the mesh's u and v: a lobe turned by more
+        // than 45 degrees is closer to the same lobe along the other axis.
+        let (ax, ay) = if axis_swapped(p.tangent_rotation) {
+            (p.alpha_y, p.alpha_x)
+        } else {
+            (p.alpha_x, p.alpha_y)
+        };
+        alpha_u.data[i] = ax.clamp(1e-3, 1.0) as f32;
+        alpha_v.data[i] = ay.clamp(1e-3, 1.0) as f32;
         let n = p.normal();
         normal.data[3 * i..3 * i + 3].copy_from_slice(&[
             (0.5 * n.x + 0.5) as f32,
@@ -343,6 +361,15 @@ print(a.out)
 mod tests {
     use super::*;
     use crate::gltf::tests::checker;
+
+    #[test]
+    fn turned_lobes_are_written_along_the_nearer_axis() {
+        let deg = |d: f64| d.to_radians();
+        for (turn, swapped) in [(0.0, false), (30.0, false), (50.0, true), (120.0, true)] {
+            assert_eq!(axis_swapped(deg(turn)), swapped, "{turn}");
+        }
+        assert!(!axis_swapped(deg(170.0)) && !axis_swapped(deg(-10.0)));
+    }
 
     #[test]
     fn scene_references_files_that_exist() {

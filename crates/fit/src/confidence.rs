@@ -26,7 +26,7 @@
 //! its cluster's lobe; the confidence says so.
 
 use rayon::prelude::*;
-use svbrdf_core::brdf::{BrdfParams, ShadingFrame};
+use svbrdf_core::brdf::{BrdfParams, Prepared};
 
 use crate::observations::Observations;
 
@@ -128,7 +128,7 @@ fn pixel_confidence(obs: &Observations, p: usize, params: &BrdfParams) -> [f32; 
     if n < MIN_VIEWS {
         return [diffuse, 0.0, 0.0];
     }
-    let frame = ShadingFrame::new(params.normal_theta_x, params.normal_theta_y);
+    let frame = Prepared::new(*params).frame;
     let (ax, ay) = (params.alpha_x.max(1e-4), params.alpha_y.max(1e-4));
     let (mut peak, mut peak_clipped, mut flank) = (0usize, 0usize, 0usize);
     let (mut sx, mut sy, mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);

@@ -5,6 +5,11 @@ use svbrdf_core::brdf::ModelKind;
 
 use crate::FitError;
 
+/// Relative drop of a part's solver cost for which a turned tangent is kept
+/// ([`FitConfig::tangent_rotation_depth`]): below it the turn is noise (an isotropic
+/// lobe's cost does not depend on it).
+pub const ROTATION_MIN_GAIN: f64 = 0.01;
+
 /// Settings of `svbrdf fit`. Every field has the paper's value or a measured default.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
@@ -68,6 +73,25 @@ pub struct FitConfig {
     /// above level 6, so the limit costs little there; restarting at every level cost
     /// 50 s for diffuse RMSE 0.0216 -> 0.0213.
     pub split_restart_depth: usize,
+    /// Whether lobes may be turned away from the plane's axes (see
+    /// [`tangent_rotation_depth`](Self::tangent_rotation_depth)): `None` (default)
+    /// lets the held-out validation decide ([`crate::select`], candidate
+    /// `turned-grain`; without validation, no turn); `Some(true)` always,
+    /// `Some(false)` never. Not on by default: on shallow clusters that mix
+    /// materials a turned lobe lowers the training error of isotropic tiles too (by
+    /// up to 36% on `tiny` tiles), and the tree it leads to fitted them worse
+    /// (docs/BENCHMARKS.md, session 23).
+    pub turned_grain: Option<bool>,
+    /// Where turning is on ([`turned_grain`](Self::turned_grain)) and a cluster less
+    /// than this many levels deep is split, each part's lobe is also fitted with its
+    /// tangent turned (the anisotropy's direction,
+    /// [`svbrdf_core::brdf::BrdfParams::tangent_rotation`]) by 22.5, 45 and 67.5
+    /// degrees from its parent's, then refined to about 1.4 degrees; the turn is kept
+    /// where it lowers the part's error by over [`ROTATION_MIN_GAIN`]. Deeper parts
+    /// inherit their parent's. Brushed metal laid askew of the markers has its
+    /// grooves at an angle that the plane's axes cannot describe (0: never turn,
+    /// alpha_x along plane x as in the paper).
+    pub tangent_rotation_depth: usize,
     /// A split is kept only if the children's summed squared error is below
     /// `1 - min_split_gain` times the parent's; otherwise the parent is final. Stops
     /// splitting clusters that are already explained to the noise level.
@@ -178,6 +202,8 @@ impl Default for FitConfig {
             min_cluster_px: 50,
             min_split_gain: 0.02,
             split_restart_depth: 6,
+            tangent_rotation_depth: 3,
+            turned_grain: None,
             max_depth: 24,
             max_fit_pixels: 4000,
             max_split_observations: 32,
@@ -212,6 +238,13 @@ impl FitConfig {
         let bad = |what: &str, v: &dyn std::fmt::Display, exp: &str| {
             Err(FitError::invalid(what, v.to_string(), exp))
         };
+        if self.tangent_rotation_depth > 64 {
+            return bad(
+                "tangent rotation depth",
+                &self.tangent_rotation_depth,
+                "split levels in [0, 64]",
+            );
+        }
         if let Some(s) = self.px_per_cm {
             if !(s > 0.0 && s <= 1000.0) {
                 return bad("resolution", &s, "pixels per cm in (0, 1000]");

@@ -607,6 +607,7 @@ mod tests {
             alpha_y: 0.25,
             normal_theta_x: 0.06,
             normal_theta_y: -0.04,
+            tangent_rotation: 0.0,
         }
     }
 

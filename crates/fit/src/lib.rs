@@ -31,6 +31,7 @@ pub mod select;
 pub mod solver;
 mod summary;
 pub mod tree;
+mod turn;
 
 use std::time::Instant;
 
@@ -46,7 +47,7 @@ pub use observations::{ObservationBuilder, Observations};
 use refine::refine;
 pub(crate) use refine::BATCH;
 pub use resources::{available_memory_bytes, estimated_fit_bytes, output_grid, MAX_GRID_PIXELS};
-pub use summary::{ClusterInfo, FitSummary, FittedMaps, IntensitySource};
+pub use summary::{ClusterInfo, FitSummary, FittedMaps, IntensitySource, TurnedGrain, TURNED_DEG};
 
 use crate::solver::Freedom;
 use crate::tree::Context;
@@ -483,6 +484,7 @@ pub(crate) fn fit_once(
             .iter()
             .filter(|c| c.is_some_and(|c| c[0] == 0.0))
             .count(),
+        turned_grain: summary::turned_grain(&params, &covered),
         selection: None,
     };
     Ok((

@@ -4,7 +4,7 @@
 //! OUT/fit.json            manifest: model, units, light intensity, maps, summary
 //! OUT/maps/diffuse.exr    diffuse albedo rho_d, linear RGB        (+ .png, sRGB 8-bit)
 //! OUT/maps/specular.exr   specular albedo rho_s, linear RGB       (+ .png, sRGB 8-bit)
-//! OUT/maps/roughness.exr  R = alpha_x, G = alpha_y, B = 0, linear (+ .png, linear 16-bit)
+//! OUT/maps/roughness.exr  R = alpha_x, G = alpha_y, B = tangent rotation / 360 degrees, linear (+ .png, linear 16-bit)
 //! OUT/maps/normal.exr     tangent-space unit normal x, y, z       (+ .png, linear 8-bit, (n + 1) / 2)
 //! OUT/maps/average.exr    mean observed colour, linear RGB        (+ .png, sRGB 8-bit)
 //! OUT/maps/clusters.png   final clusters in random colours (sRGB); clusters.exr holds ids
@@ -197,10 +197,16 @@ pub fn write_outputs(
     );
     put(
         "roughness",
-        plane(maps, |i| [p[i].alpha_x as f32, p[i].alpha_y as f32, 0.0]),
+        plane(maps, |i| {
+            [
+                p[i].alpha_x as f32,
+                p[i].alpha_y as f32,
+                rotation_to_turns(p[i].tangent_rotation),
+            ]
+        }),
         Encoding::Linear,
         PngDepth::Sixteen,
-        "roughness: R = alpha_x (along plane x), G = alpha_y (along plane y)",
+        "roughness: R = alpha_x (along the tangent), G = alpha_y (along the bitangent), B = tangent rotation from plane +x towards +y in turns (0.125 = 45 degrees; 0: alpha_x along plane x)",
         1.0,
     );
     let normal = plane(maps, |i| {
@@ -377,9 +383,23 @@ pub struct LoadedMaps {
     pub confidence: Option<svbrdf_core::confidence::ConfidenceMap>,
 }
 
+/// The tangent rotation (radians) as the roughness map's third channel stores it: a
+/// fraction of a full turn, counter-clockwise seen from above (plane +x towards +y),
+/// as Blender's "Anisotropic Rotation" input takes it. Lobes are symmetric under a
+/// half turn, so fitted maps hold values in [0, 0.25).
+pub fn rotation_to_turns(radians: f64) -> f32 {
+    (radians / std::f64::consts::TAU) as f32
+}
+
+/// Inverse of [`rotation_to_turns`].
+pub fn rotation_from_turns(turns: f32) -> f64 {
+    f64::from(turns) * std::f64::consts::TAU
+}
+
 /// The parameters of pixel `i` from the four maps as `fit` writes them: diffuse and
-/// specular albedo, roughness (alpha_x and alpha_y in the first two channels) and the
-/// unit normal (renormalised; the normal-offset angles are derived from it).
+/// specular albedo, roughness (alpha_x and alpha_y in the first two channels, the
+/// tangent rotation in the third where there is one) and the unit normal
+/// (renormalised; the normal-offset angles are derived from it).
 pub fn params_from_maps(maps: [&ImageF32; 4], i: usize) -> svbrdf_core::brdf::BrdfParams {
     use svbrdf_core::brdf::BrdfParams;
     use svbrdf_core::geometry::Vec3;
@@ -401,6 +421,11 @@ pub fn params_from_maps(maps: [&ImageF32; 4], i: usize) -> svbrdf_core::brdf::Br
         alpha_y: rv[1],
         normal_theta_x: tx,
         normal_theta_y: ty,
+        tangent_rotation: if r.channels >= 3 {
+            rotation_from_turns(r.data[r.channels * i + 2])
+        } else {
+            0.0
+        },
     }
 }
 
@@ -490,4 +515,27 @@ pub fn read_maps(dir: &Path) -> Result<LoadedMaps, FitError> {
         coverage,
         confidence,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_tangent_rotation_survives_the_roughness_map() {
+        let img = |c: usize, v: [f32; 3]| {
+            let mut i = ImageF32::new(1, 1, c);
+            i.data.copy_from_slice(&v[..c]);
+            i
+        };
+        let (d, s, n) = (img(3, [0.2; 3]), img(3, [0.3; 3]), img(3, [0.0, 0.0, 1.0]));
+        let turn = 0.4;
+        let r = img(3, [0.08, 0.25, rotation_to_turns(turn)]);
+        let p = params_from_maps([&d, &s, &r, &n], 0);
+        assert!((p.tangent_rotation - turn).abs() < 1e-6, "{p:?}");
+        assert!((p.alpha_x - 0.08).abs() < 1e-6 && (p.alpha_y - 0.25).abs() < 1e-6);
+        // A two-channel roughness map (alpha_x, alpha_y) has no rotation.
+        let r2 = img(2, [0.08, 0.25, 0.0]);
+        assert_eq!(params_from_maps([&d, &s, &r2, &n], 0).tangent_rotation, 0.0);
+    }
 }

@@ -60,7 +60,7 @@ pub const DEFAULT: &str = "default";
 pub const MARGIN: f64 = 0.05;
 
 /// The settings compared, from least to most detailed.
-pub const CANDIDATES: [Candidate; 5] = [
+pub const CANDIDATES: [Candidate; 6] = [
     Candidate {
         name: "diffuse-only",
         settings: "no specular lobe (Lambertian)",
@@ -80,6 +80,13 @@ pub const CANDIDATES: [Candidate; 5] = [
         name: "cluster-lobes",
         settings: "every pixel keeps its cluster's specular lobe (refine_specular off)",
         apply: |c| c.refine_specular = false,
+    },
+    Candidate {
+        name: "turned-grain",
+        settings: "the anisotropy's direction fitted per cluster, not only along the plane's axes (turned_grain)",
+        apply: |c| {
+            c.turned_grain.get_or_insert(true);
+        },
     },
     Candidate {
         name: DEFAULT,

@@ -193,9 +193,10 @@ impl Problem<'_> {
         }
     }
 
-    /// Weighted sum of squared errors.
-    pub fn cost(&self, x: &[f64; N_PARAMS]) -> f64 {
-        let p = Prepared::new(BrdfParams::from_array(x));
+    /// Weighted sum of squared errors at `x` with the tangent rotated by `rotation`
+    /// radians ([`BrdfParams::tangent_rotation`]).
+    pub fn cost(&self, x: &[f64; N_PARAMS], rotation: f64) -> f64 {
+        let p = Prepared::new(BrdfParams::from_array_rotated(x, rotation));
         let mut s = 0.0;
         for o in self.samples {
             let v = self.model.radiance(&p, &o.lv, 1.0);
@@ -209,8 +210,8 @@ impl Problem<'_> {
     }
 
     /// Cost, J^T W J and J^T W r at `x`.
-    fn linearise(&self, x: &[f64; N_PARAMS], fr: &Freedom) -> (f64, Mat, Vector) {
-        let p = Prepared::new(BrdfParams::from_array(x));
+    fn linearise(&self, x: &[f64; N_PARAMS], fr: &Freedom, rotation: f64) -> (f64, Mat, Vector) {
+        let p = Prepared::new(BrdfParams::from_array_rotated(x, rotation));
         let mut jtj = Mat::zeros();
         let mut jtr = Vector::zeros();
         let mut cost = 0.0;
@@ -271,13 +272,20 @@ impl Problem<'_> {
     ) -> Solution {
         let mut x = init.to_array();
         self.project(&mut x, fr);
-        let first = self.linearise(&x, fr);
+        let first = self.linearise(&x, fr, init.tangent_rotation);
         let n = self.samples.len().max(1) as f64;
         let prior = Prior {
             centre: x,
             weight: std::array::from_fn(|k| strength * first.1[(k, k)].max(1e-12) / n),
         };
-        self.solve_from(x, fr, Some(&prior), max_iterations, Some(first))
+        self.solve_from(
+            x,
+            init.tangent_rotation,
+            fr,
+            Some(&prior),
+            max_iterations,
+            Some(first),
+        )
     }
 
     /// Fit from `init` with the given freedom, optional prior and iteration cap.
@@ -290,12 +298,14 @@ impl Problem<'_> {
     ) -> Solution {
         let mut x = init.to_array();
         self.project(&mut x, fr);
-        self.solve_from(x, fr, prior, max_iterations, None)
+        self.solve_from(x, init.tangent_rotation, fr, prior, max_iterations, None)
     }
 
+    /// The tangent rotation `rotation` is held fixed.
     fn solve_from(
         &self,
         mut x: [f64; N_PARAMS],
+        rotation: f64,
         fr: &Freedom,
         prior: Option<&Prior>,
         max_iterations: usize,
@@ -321,17 +331,18 @@ impl Problem<'_> {
         let batch = (self.model.kind() == ModelKind::Ward)
             .then(|| std::cell::RefCell::new(SampleBatch::new(self.samples)));
         let data_lin = |x: &[f64; N_PARAMS]| match &batch {
-            Some(b) => {
-                b.borrow_mut()
-                    .linearise(&BrdfParams::from_array(x), self.intensity, fr.isotropic)
-            }
-            None => self.linearise(x, fr),
+            Some(b) => b.borrow_mut().linearise(
+                &BrdfParams::from_array_rotated(x, rotation),
+                self.intensity,
+                fr.isotropic,
+            ),
+            None => self.linearise(x, fr, rotation),
         };
         let eval_cost = |x: &[f64; N_PARAMS]| match &batch {
             Some(b) => b
                 .borrow_mut()
-                .cost(&BrdfParams::from_array(x), self.intensity),
-            None => self.cost(x),
+                .cost(&BrdfParams::from_array_rotated(x, rotation), self.intensity),
+            None => self.cost(x, rotation),
         };
         let lin = |x: &[f64; N_PARAMS]| add_prior(x, data_lin(x));
         let (mut data_cost, mut jtj, mut jtr) = match first {
@@ -399,7 +410,7 @@ impl Problem<'_> {
             }
         }
         Solution {
-            params: BrdfParams::from_array(&x),
+            params: BrdfParams::from_array_rotated(&x, rotation),
             cost: data_cost,
             iterations,
             converged,
@@ -460,6 +471,7 @@ mod tests {
             alpha_y: 0.3,
             normal_theta_x: 0.08,
             normal_theta_y: -0.05,
+            tangent_rotation: 0.0,
         }
     }
 
@@ -521,7 +533,7 @@ mod tests {
             ..t
         };
         for fr in [Freedom::FULL, Freedom::ISOTROPIC_FLAT] {
-            let (c, a, g) = prob.linearise(&x.to_array(), &fr);
+            let (c, a, g) = prob.linearise(&x.to_array(), &fr, x.tangent_rotation);
             let (cb, ab, gb) = SampleBatch::new(&s).linearise(&x, prob.intensity, fr.isotropic);
             assert!((c - cb).abs() <= 1e-4 * c, "{c} vs {cb}");
             let close = |u: f64, v: f64, scale: f64| (u - v).abs() <= 1e-4 * scale + 1e-12;
@@ -534,7 +546,7 @@ mod tests {
                 }
             }
             let cost = SampleBatch::new(&s).cost(&x, prob.intensity);
-            assert!((cost - prob.cost(&x.to_array())).abs() <= 1e-4 * cost);
+            assert!((cost - prob.cost(&x.to_array(), x.tangent_rotation)).abs() <= 1e-4 * cost);
         }
     }
 

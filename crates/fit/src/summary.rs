@@ -141,9 +141,52 @@ pub struct FitSummary {
     /// lobe rests on flanks, clipped peaks or nothing.
     #[serde(default)]
     pub clusters_without_peak: usize,
+    /// Anisotropic pixels whose lobe the fit turned away from the plane's axes
+    /// ([`crate::FitConfig::tangent_rotation_depth`]); absent when none.
+    #[serde(default)]
+    pub turned_grain: Option<TurnedGrain>,
     /// How the settings were chosen on held-out frames (absent when not validated).
     #[serde(default)]
     pub selection: Option<select::Selection>,
     /// Seconds per step.
     pub timings: Vec<(String, f64)>,
+}
+
+/// Where the fitted anisotropy does not lie along the plane's axes.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct TurnedGrain {
+    /// Share of the covered pixels that are anisotropic (one roughness over 1.2 times
+    /// the other) with their tangent turned more than [`TURNED_DEG`] from either axis.
+    pub share: f64,
+    /// Median turn of those pixels, degrees in (0, 90): the tangent (`alpha_x`) from
+    /// plane +x towards +y.
+    pub median_deg: f64,
+}
+
+/// A tangent turned by less than this from either of the plane's axes (degrees) counts
+/// as along it.
+pub const TURNED_DEG: f64 = 2.0;
+
+/// [`TurnedGrain`] of fitted parameters over the covered pixels; `None` when no pixel
+/// is turned.
+pub fn turned_grain(params: &[BrdfParams], covered: &[bool]) -> Option<TurnedGrain> {
+    let mut n = 0usize;
+    let mut turned = Vec::new();
+    for (p, _) in params.iter().zip(covered).filter(|(_, c)| **c) {
+        n += 1;
+        let (lo, hi) = (p.alpha_x.min(p.alpha_y), p.alpha_x.max(p.alpha_y));
+        let deg = p.canonical_rotation().tangent_rotation.to_degrees();
+        if hi > 1.2 * lo && deg > TURNED_DEG && deg < 90.0 - TURNED_DEG {
+            turned.push(deg);
+        }
+    }
+    if turned.is_empty() {
+        return None;
+    }
+    let mid = turned.len() / 2;
+    let median_deg = *turned.select_nth_unstable_by(mid, f64::total_cmp).1;
+    Some(TurnedGrain {
+        share: turned.len() as f64 / n.max(1) as f64,
+        median_deg,
+    })
 }

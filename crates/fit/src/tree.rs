@@ -267,19 +267,25 @@ fn solutions(
     energy: bool,
 ) -> Vec<Solution> {
     let samples = binned_samples(ctx, pixels);
-    let mut bounds = ctx.bounds();
-    bounds.energy = energy;
-    let prob = Problem {
-        model: ctx.model,
-        samples: &samples,
-        intensity: ctx.intensity,
-        bounds,
-        tolerance: ctx.cfg.tolerance,
-    };
+    let prob = problem(ctx, &samples, energy);
     inits
         .iter()
         .map(|init| prob.solve(init, fr, None, ctx.cfg.max_iterations))
         .collect()
+}
+
+/// The solver's problem on `samples` with the context's bounds (`energy`: keep
+/// `rho_d + rho_s <= 1`).
+fn problem<'a>(ctx: &Context<'a>, samples: &'a [Sample], energy: bool) -> Problem<'a> {
+    let mut bounds = ctx.bounds();
+    bounds.energy = energy;
+    Problem {
+        model: ctx.model,
+        samples,
+        intensity: ctx.intensity,
+        bounds,
+        tolerance: ctx.cfg.tolerance,
+    }
 }
 
 /// The paper starts at alpha = 0.1; two more starting roughnesses cost little at the
@@ -399,11 +405,22 @@ fn lobe_peak(p: &BrdfParams) -> f64 {
 fn fit_child(ctx: &Context, part: &[u32], parent: &BrdfParams, depth: usize) -> Fitted {
     let mut inits = vec![*parent];
     if depth < ctx.cfg.split_restart_depth {
-        inits.extend(starting_roughness(&initial_params(ctx, part)));
+        inits.extend(
+            starting_roughness(&initial_params(ctx, part))
+                .into_iter()
+                .map(|p| BrdfParams {
+                    tangent_rotation: parent.tangent_rotation,
+                    ..p
+                }),
+        );
     }
     // Compared by the solver's cost on the part's binned observations, so that only
     // the chosen fit pays for the per-pixel errors.
-    let mut fits = solutions(ctx, part, &inits, &Freedom::FULL, true).into_iter();
+    let samples = binned_samples(ctx, part);
+    let prob = problem(ctx, &samples, true);
+    let mut fits = inits
+        .iter()
+        .map(|init| prob.solve(init, &Freedom::FULL, None, ctx.cfg.max_iterations));
     let Some(mut best) = fits.next() else {
         return fit(ctx, part, &[*parent], &Freedom::FULL);
     };
@@ -417,6 +434,15 @@ fn fit_child(ctx: &Context, part: &[u32], parent: &BrdfParams, depth: usize) -> 
         {
             best = own;
         }
+    }
+    if ctx.cfg.turned_grain == Some(true) && depth < ctx.cfg.tangent_rotation_depth {
+        best = crate::turn::turn_tangent(&prob, best, ctx.cfg.max_iterations, |lobe| {
+            !invented(
+                lobe,
+                parent,
+                crate::confidence::lobe_seen_share(ctx.obs, part, lobe, SEEN_SAMPLE),
+            )
+        });
     }
     let (errs, sse, n_obs) = pixel_errors(ctx, part, &best.params);
     Fitted {
@@ -506,7 +532,7 @@ pub fn refit_lobe(ctx: &Context, leaf: &Leaf, params: &[BrdfParams]) -> Option<B
         bounds: ctx.bounds(),
         tolerance: ctx.cfg.tolerance,
     };
-    let before = prob.cost(&start.to_array());
+    let before = prob.cost(&start.to_array(), start.tangent_rotation);
     let s = prob.solve(
         &start,
         &lobe_freedom(leaf.depth),

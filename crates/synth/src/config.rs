@@ -246,6 +246,12 @@ pub struct SynthConfig {
     pub map_px_per_cm: f64,
     /// Smallest feature of procedural materials, cm.
     pub feature_cm: f64,
+    /// Procedural materials turned by this angle about the plane's normal,
+    /// counter-clockwise seen from above (plane +x towards +y), degrees: the pattern
+    /// and the anisotropy (brushed metal's grooves) turn together, as a sheet laid at
+    /// an angle to the markers would. 0: grooves along plane x.
+    #[serde(default)]
+    pub grain_angle_deg: f64,
     /// Markers.
     pub markers: MarkerSpec,
     /// Flash video camera.
@@ -319,6 +325,13 @@ impl SynthConfig {
         pos("region width", self.region_cm[0], "cm")?;
         pos("region height", self.region_cm[1], "cm")?;
         pos("map resolution", self.map_px_per_cm, "pixels per cm")?;
+        if !(self.grain_angle_deg.is_finite() && self.grain_angle_deg.abs() <= 360.0) {
+            return Err(SynthError::invalid(
+                "grain angle",
+                self.grain_angle_deg,
+                "degrees, in [-360, 360]",
+            ));
+        }
         if self.region_cm[0] * self.map_px_per_cm > 16384.0
             || self.region_cm[1] * self.map_px_per_cm > 16384.0
         {

@@ -163,9 +163,13 @@ pub fn synthesize(
         / cfg.map_px_per_cm;
     let grid = PlaneGrid::new(region.expanded(margin), cfg.map_px_per_cm)?;
     let material = match &cfg.material {
-        MaterialSource::Procedural(name) => {
-            MaterialMaps::procedural(name, grid, cfg.feature_cm, cfg.seed)?
-        }
+        MaterialSource::Procedural(name) => MaterialMaps::procedural(
+            name,
+            grid,
+            cfg.feature_cm,
+            cfg.grain_angle_deg.to_radians(),
+            cfg.seed,
+        )?,
         MaterialSource::Maps(path) => MaterialMaps::from_folder(path, grid, region)?,
     };
     let patterns = cfg

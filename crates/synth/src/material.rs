@@ -23,14 +23,18 @@ pub struct MaterialMaps {
     pub diffuse: ImageF32,
     /// Specular albedo rho_s, linear RGB.
     pub specular: ImageF32,
-    /// Roughness (alpha_x, alpha_y).
+    /// Roughness (alpha_x, alpha_y) and the tangent rotation, radians
+    /// ([`BrdfParams::tangent_rotation`]).
     pub roughness: ImageF32,
     /// Unit normal (x, y, z).
     pub normal: ImageF32,
-    /// All of the above interleaved per texel (rho_d, rho_s, alpha, normal: 11 values),
-    /// so the renderer computes bilinear weights once per sample.
-    packed: Vec<[f32; 11]>,
+    /// All of the above interleaved per texel (rho_d, rho_s, alpha, rotation, normal:
+    /// 12 values), so the renderer computes bilinear weights once per sample.
+    packed: Vec<[f32; PACKED]>,
 }
+
+/// Values per texel in [`MaterialMaps::packed`].
+const PACKED: usize = 12;
 
 /// One texel before normals are derived.
 #[derive(Debug, Clone, Copy)]
@@ -84,11 +88,14 @@ const GROUT: Base = Base {
 };
 
 impl MaterialMaps {
-    /// Rasterise a built-in material over `grid`. `feature_cm` is its smallest detail.
+    /// Rasterise a built-in material over `grid`. `feature_cm` is its smallest detail;
+    /// the pattern and its anisotropy are turned by `grain_angle` radians about the
+    /// normal (counter-clockwise seen from above).
     pub fn procedural(
         name: &str,
         grid: PlaneGrid,
         feature_cm: f64,
+        grain_angle: f64,
         seed: u64,
     ) -> Result<Self, SynthError> {
         let f = feature_cm;
@@ -110,22 +117,31 @@ impl MaterialMaps {
                 crate::config::MATERIALS.join(", "),
             ));
         }
+        let (s_a, c_a) = grain_angle.sin_cos();
         let texels: Vec<Texel> = (0..grid.height)
             .into_par_iter()
             .flat_map_iter(|r| (0..grid.width).map(move |c| (c, r)).collect::<Vec<_>>())
             .map(|(c, r)| {
                 let p = grid.pixel_centre(c, r);
-                texel(p.x, p.y)
+                // The pattern's own coordinates: the plane point turned back.
+                let (u, v) = (c_a * p.x + s_a * p.y, -s_a * p.x + c_a * p.y);
+                let mut t = texel(u, v);
+                // Its slope was along the pattern's axes: turn it with the pattern.
+                let [sx, sy] = t.slope;
+                t.slope = [c_a * sx - s_a * sy, s_a * sx + c_a * sy];
+                t
             })
             .collect();
-        Ok(Self::from_texels(grid, &texels))
+        Ok(Self::from_texels(grid, &texels, grain_angle))
     }
 
-    fn from_texels(grid: PlaneGrid, texels: &[Texel]) -> Self {
+    /// Maps of `texels` (row-major over `grid`), every texel's tangent turned by
+    /// `rotation` radians.
+    fn from_texels(grid: PlaneGrid, texels: &[Texel], rotation: f64) -> Self {
         let (w, h) = (grid.width, grid.height);
         let mut diffuse = ImageF32::new(w, h, 3);
         let mut specular = ImageF32::new(w, h, 3);
-        let mut roughness = ImageF32::new(w, h, 2);
+        let mut roughness = ImageF32::new(w, h, 3);
         let mut normal = ImageF32::new(w, h, 3);
         let step = 1.0 / grid.px_per_cm;
         for r in 0..h {
@@ -138,9 +154,11 @@ impl MaterialMaps {
                     diffuse.pixel_mut(c, r)[k] = d;
                     specular.pixel_mut(c, r)[k] = (t.rho_s[k] as f32).clamp(0.0, 1.0 - d);
                 }
-                roughness
-                    .pixel_mut(c, r)
-                    .copy_from_slice(&[t.alpha[0] as f32, t.alpha[1] as f32]);
+                roughness.pixel_mut(c, r).copy_from_slice(&[
+                    t.alpha[0] as f32,
+                    t.alpha[1] as f32,
+                    rotation as f32,
+                ]);
                 // Central differences of the height field; +y is towards row 0.
                 let hx = |cc: usize| texels[r * w + cc].height_cm;
                 let hy = |rr: usize| texels[rr * w + c].height_cm;
@@ -166,11 +184,11 @@ impl MaterialMaps {
     ) -> Self {
         let packed = (0..grid.len())
             .map(|i| {
-                let mut t = [0f32; 11];
+                let mut t = [0f32; PACKED];
                 t[0..3].copy_from_slice(&diffuse.data[3 * i..3 * i + 3]);
                 t[3..6].copy_from_slice(&specular.data[3 * i..3 * i + 3]);
-                t[6..8].copy_from_slice(&roughness.data[2 * i..2 * i + 2]);
-                t[8..11].copy_from_slice(&normal.data[3 * i..3 * i + 3]);
+                t[6..9].copy_from_slice(&roughness.data[3 * i..3 * i + 3]);
+                t[9..12].copy_from_slice(&normal.data[3 * i..3 * i + 3]);
                 t
             })
             .collect();
@@ -251,7 +269,7 @@ impl MaterialMaps {
                 }
             })
             .collect();
-        let mut maps = Self::from_texels(grid, &texels);
+        let mut maps = Self::from_texels(grid, &texels, 0.0);
         if let Some((img, is_exr)) = &normal {
             let mut nmap = maps.normal.clone();
             for i in 0..grid.len() {
@@ -300,14 +318,14 @@ impl MaterialMaps {
             fx * fy,
         ];
         let texels = [y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1];
-        let mut t = [0f32; 11];
+        let mut t = [0f32; PACKED];
         for (wt, i) in weights.iter().zip(texels) {
             let src = &self.packed[i];
-            for k in 0..11 {
+            for k in 0..PACKED {
                 t[k] += wt * src[k];
             }
         }
-        let nv = Vec3::new(t[8].into(), t[9].into(), t[10].into());
+        let nv = Vec3::new(t[9].into(), t[10].into(), t[11].into());
         let nv = nv.try_normalize(1e-9).unwrap_or_else(Vec3::z);
         (
             BrdfParams {
@@ -317,6 +335,7 @@ impl MaterialMaps {
                 alpha_y: t[7].into(),
                 normal_theta_x: 0.0,
                 normal_theta_y: 0.0,
+                tangent_rotation: t[8].into(),
             },
             nv,
         )
@@ -546,8 +565,8 @@ mod tests {
     fn procedural_maps_are_physical_and_deterministic() {
         let grid = PlaneGrid::new(Region::centred(4.0, 4.0), 10.0).unwrap();
         for name in crate::config::MATERIALS {
-            let a = MaterialMaps::procedural(name, grid, 0.25, 7).unwrap();
-            let b = MaterialMaps::procedural(name, grid, 0.25, 7).unwrap();
+            let a = MaterialMaps::procedural(name, grid, 0.25, 0.0, 7).unwrap();
+            let b = MaterialMaps::procedural(name, grid, 0.25, 0.0, 7).unwrap();
             assert_eq!(a.diffuse, b.diffuse);
             for i in 0..grid.len() {
                 let (c, r) = (i % grid.width, i / grid.width);
@@ -556,6 +575,19 @@ mod tests {
                 assert!((n.norm() - 1.0).abs() < 1e-6 && n.z > 0.5);
             }
         }
-        assert!(MaterialMaps::procedural("velvet", grid, 0.25, 7).is_err());
+        assert!(MaterialMaps::procedural("velvet", grid, 0.25, 0.0, 7).is_err());
+        // Turned a quarter: the rotation is in every texel, and the grooves that ran
+        // along x run along y.
+        let flat = MaterialMaps::procedural("brushed-metal", grid, 0.25, 0.0, 7).unwrap();
+        let turned =
+            MaterialMaps::procedural("brushed-metal", grid, 0.25, std::f64::consts::FRAC_PI_2, 7)
+                .unwrap();
+        let p = Vec2::new(0.3, -0.2);
+        let (a, _) = turned.sample(p);
+        assert!((a.tangent_rotation - std::f64::consts::FRAC_PI_2).abs() < 1e-6);
+        assert_eq!(flat.sample(p).0.tangent_rotation, 0.0);
+        // The pattern at p turned is the flat pattern at p turned back.
+        let back = Vec2::new(p.y, -p.x);
+        assert!((a.rho_d[0] - flat.sample(back).0.rho_d[0]).abs() < 0.02);
     }
 }

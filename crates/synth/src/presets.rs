@@ -34,6 +34,7 @@ impl SynthConfig {
             region_cm: [8.0, 8.0],
             map_px_per_cm: 24.0,
             feature_cm: 0.25,
+            grain_angle_deg: 0.0,
             markers: MarkerSpec {
                 dictionary: "DICT_6X6_250".into(),
                 size_cm: 1.6,

@@ -45,6 +45,7 @@ const PAPER: BrdfParams = BrdfParams {
     alpha_y: 0.35,
     normal_theta_x: 0.0,
     normal_theta_y: 0.0,
+    tangent_rotation: 0.0,
 };
 
 const INK: BrdfParams = BrdfParams {
@@ -54,6 +55,7 @@ const INK: BrdfParams = BrdfParams {
     alpha_y: 0.25,
     normal_theta_x: 0.0,
     normal_theta_y: 0.0,
+    tangent_rotation: 0.0,
 };
 
 impl Scene {
@@ -131,6 +133,7 @@ impl Scene {
                 alpha_y: 0.3,
                 normal_theta_x: 0.0,
                 normal_theta_y: 0.0,
+                tangent_rotation: 0.0,
             },
             Vec3::z(),
         )

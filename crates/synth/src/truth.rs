@@ -136,7 +136,7 @@ pub struct MapFiles {
     pub diffuse: String,
     /// Specular albedo: linear EXR.
     pub specular: String,
-    /// Roughness: linear EXR (R = alpha_x, G = alpha_y, B = 0).
+    /// Roughness: linear EXR (R = alpha_x, G = alpha_y, B = tangent rotation in turns).
     pub roughness: String,
     /// Tangent-space normal: linear EXR holding x, y, z in [-1, 1].
     pub normal: String,

@@ -31,13 +31,17 @@ pub(crate) fn write_truth_maps(
     let rough_max = m
         .roughness
         .data
-        .iter()
-        .fold(0f32, |a, b| a.max(*b))
+        .chunks_exact(3)
+        .fold(0f32, |a, b| a.max(b[0]).max(b[1]))
         .max(1e-6);
     for r in 0..grid.height {
         for c in 0..grid.width {
             let a = m.roughness.pixel(c, r);
-            rough3.pixel_mut(c, r).copy_from_slice(&[a[0], a[1], 0.0]);
+            rough3.pixel_mut(c, r).copy_from_slice(&[
+                a[0],
+                a[1],
+                (f64::from(a[2]) / std::f64::consts::TAU) as f32,
+            ]);
             let n = m.normal.pixel(c, r);
             normal01.pixel_mut(c, r).copy_from_slice(&[
                 n[0] * 0.5 + 0.5,
@@ -85,8 +89,12 @@ pub(crate) fn write_truth_maps(
             "roughness",
             Encoding::Linear,
             match model {
-                ModelKind::Ward => "R = alpha_x, G = alpha_y (Ward)",
-                ModelKind::Ggx => "R = alpha_x, G = alpha_y (GGX)",
+                ModelKind::Ward => {
+                    "R = alpha_x, G = alpha_y (Ward), B = tangent rotation in turns (plane +x towards +y)"
+                }
+                ModelKind::Ggx => {
+                    "R = alpha_x, G = alpha_y (GGX), B = tangent rotation in turns (plane +x towards +y)"
+                }
             },
         ),
     )?;
@@ -126,7 +134,10 @@ pub(crate) fn write_truth_maps(
         &base("specular_albedo", Encoding::Srgb, "albedo"),
     )?;
     let mut rough_vis = rough3.clone();
-    rough_vis.data.iter_mut().for_each(|v| *v /= rough_max);
+    for px in rough_vis.data.chunks_exact_mut(3) {
+        px[0] /= rough_max;
+        px[1] /= rough_max;
+    }
     write_png(
         &dir.join("roughness.png"),
         &rough_vis,
@@ -135,7 +146,7 @@ pub(crate) fn write_truth_maps(
         &base(
             "roughness",
             Encoding::Linear,
-            &format!("alpha / {rough_max}"),
+            &format!("R, G = alpha / {rough_max}; B = tangent rotation in turns"),
         ),
     )?;
     write_png(

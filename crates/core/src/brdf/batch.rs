@@ -365,6 +365,7 @@ mod tests {
             alpha_y: 0.25,
             normal_theta_x: 0.1,
             normal_theta_y: -0.07,
+            tangent_rotation: 0.0,
         };
         let p = Prepared::new(params);
         let w = WardF32::new(&p);

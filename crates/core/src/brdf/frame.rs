@@ -27,6 +27,28 @@ impl ShadingFrame {
         Self::from_slopes(theta_y.tan(), theta_x.tan())
     }
 
+    /// The frame with tangent and bitangent turned by `angle` radians about the normal
+    /// (from the tangent towards the bitangent); the derivatives turn with them, as the
+    /// angle does not depend on the normal-offset angles. 0 returns the frame as it is.
+    pub fn rotated(self, angle: f64) -> Self {
+        if angle == 0.0 {
+            return self;
+        }
+        let (s, c) = angle.sin_cos();
+        let turn = |t: Vec3, b: Vec3| (t * c + b * s, b * c - t * s);
+        let (t, b) = turn(self.t, self.b);
+        let d0 = turn(self.dt[0], self.db[0]);
+        let d1 = turn(self.dt[1], self.db[1]);
+        Self {
+            n: self.n,
+            t,
+            b,
+            dn: self.dn,
+            dt: [d0.0, d1.0],
+            db: [d0.1, d1.1],
+        }
+    }
+
     /// Frame of a unit normal with positive z for *evaluation only*: the derivative
     /// fields are zero, so never pass it to `radiance_grad`. About three times cheaper
     /// than [`from_normal`](Self::from_normal); renderers call it per pixel.

@@ -46,6 +46,13 @@ pub struct BrdfParams {
     pub normal_theta_x: f64,
     /// Normal tilt in the x-z plane (a rotation about the y axis), radians.
     pub normal_theta_y: f64,
+    /// Tangent rotation (the anisotropy direction), radians: `alpha_x` acts along the
+    /// plane's +x axis (projected onto the surface) turned by this angle about the
+    /// normal towards +y. 0 for materials whose grain runs along the plane's axes.
+    /// Not one of the [`N_PARAMS`] solver parameters: fits search it per cluster and
+    /// hold it fixed in each solve.
+    #[serde(default)]
+    pub tangent_rotation: f64,
 }
 
 impl Default for BrdfParams {
@@ -58,6 +65,7 @@ impl Default for BrdfParams {
             alpha_y: 0.1,
             normal_theta_x: 0.0,
             normal_theta_y: 0.0,
+            tangent_rotation: 0.0,
         }
     }
 }
@@ -82,8 +90,14 @@ impl BrdfParams {
         ]
     }
 
-    /// Inverse of [`to_array`](Self::to_array).
+    /// Inverse of [`to_array`](Self::to_array), with no tangent rotation.
     pub fn from_array(a: &[f64; N_PARAMS]) -> Self {
+        Self::from_array_rotated(a, 0.0)
+    }
+
+    /// Inverse of [`to_array`](Self::to_array) with the given tangent rotation
+    /// (radians), which `to_array` leaves out.
+    pub fn from_array_rotated(a: &[f64; N_PARAMS], tangent_rotation: f64) -> Self {
         Self {
             rho_d: [a[0], a[1], a[2]],
             rho_s: [a[3], a[4], a[5]],
@@ -91,7 +105,25 @@ impl BrdfParams {
             alpha_y: a[7],
             normal_theta_x: a[8],
             normal_theta_y: a[9],
+            tangent_rotation,
         }
+    }
+
+    /// The same lobe described with the tangent rotation in [0, pi): a half turn
+    /// changes nothing, and a quarter turn swaps `alpha_x` and `alpha_y`, so the
+    /// stored angle is reduced to [0, pi/2) with the alphas swapped where needed.
+    pub fn canonical_rotation(mut self) -> Self {
+        let half = std::f64::consts::FRAC_PI_2;
+        let mut r = self.tangent_rotation.rem_euclid(std::f64::consts::PI);
+        if !r.is_finite() {
+            r = 0.0;
+        }
+        if r >= half {
+            r -= half;
+            std::mem::swap(&mut self.alpha_x, &mut self.alpha_y);
+        }
+        self.tangent_rotation = r;
+        self
     }
 
     /// The unit surface normal in plane coordinates.
@@ -117,6 +149,7 @@ impl BrdfParams {
             })
             && self.alpha_x > 0.0
             && self.alpha_y > 0.0
+            && self.tangent_rotation.is_finite()
     }
 }
 
@@ -135,7 +168,7 @@ impl Prepared {
     pub fn from_normal(params: BrdfParams, n: Vec3) -> Self {
         Self {
             params,
-            frame: ShadingFrame::from_normal(n),
+            frame: ShadingFrame::from_normal(n).rotated(params.tangent_rotation),
         }
     }
 
@@ -144,7 +177,7 @@ impl Prepared {
     pub fn for_evaluation(params: BrdfParams, n: Vec3) -> Self {
         Self {
             params,
-            frame: ShadingFrame::for_evaluation(n),
+            frame: ShadingFrame::for_evaluation(n).rotated(params.tangent_rotation),
         }
     }
 
@@ -152,7 +185,8 @@ impl Prepared {
     pub fn new(params: BrdfParams) -> Self {
         Self {
             params,
-            frame: ShadingFrame::new(params.normal_theta_x, params.normal_theta_y),
+            frame: ShadingFrame::new(params.normal_theta_x, params.normal_theta_y)
+                .rotated(params.tangent_rotation),
         }
     }
 }

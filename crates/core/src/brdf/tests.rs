@@ -26,6 +26,7 @@ fn params(ax: f64, ay: f64, tx: f64, ty: f64) -> BrdfParams {
         alpha_y: ay,
         normal_theta_x: tx,
         normal_theta_y: ty,
+        tangent_rotation: 0.0,
     }
 }
 
@@ -37,8 +38,10 @@ proptest! {
         ax in 0.05f64..0.6, ay in 0.05f64..0.6, tx in -0.5f64..0.5, ty in -0.5f64..0.5,
         lx in -6.0f64..6.0, ly in -6.0f64..6.0, lz in 5.0f64..20.0,
         cx in -6.0f64..6.0, cy in -6.0f64..6.0, cz in 5.0f64..20.0,
+        turn in -3.2f64..3.2,
     ) {
-        let base = params(ax, ay, tx, ty);
+        // Half the cases with the tangent turned: the frame's derivatives turn with it.
+        let base = BrdfParams { tangent_rotation: if turn > 0.0 { turn } else { 0.0 }, ..params(ax, ay, tx, ty) };
         let obs = LightView::from_points(Vec3::new(0.3, -0.2, 0.0), Vec3::new(lx, ly, lz), Vec3::new(cx, cy, cz));
         for m in models() {
             let p = Prepared::new(base);
@@ -57,8 +60,9 @@ proptest! {
                 let mut dn = arr;
                 up[k] += h;
                 dn[k] -= h;
-                let fu = m.radiance(&Prepared::new(BrdfParams::from_array(&up)), &obs, 300.0);
-                let fd = m.radiance(&Prepared::new(BrdfParams::from_array(&dn)), &obs, 300.0);
+                let r = base.tangent_rotation;
+                let fu = m.radiance(&Prepared::new(BrdfParams::from_array_rotated(&up, r)), &obs, 300.0);
+                let fd = m.radiance(&Prepared::new(BrdfParams::from_array_rotated(&dn, r)), &obs, 300.0);
                 for c in 0..3 {
                     let numeric = (fu[c] - fd[c]) / (2.0 * h);
                     let analytic = match k {
@@ -221,4 +225,57 @@ fn frame_from_normal_matches_angles() {
     assert!(a.t.dot(&a.n).abs() < 1e-12 && (a.b - a.n.cross(&a.t)).norm() < 1e-12);
     let c = ShadingFrame::for_evaluation(a.n);
     assert!((a.t - c.t).norm() < 1e-12 && (a.b - c.b).norm() < 1e-12);
+}
+
+#[test]
+fn a_quarter_turn_swaps_the_roughnesses() {
+    let lv = LightView::from_points(
+        Vec3::new(0.3, -0.2, 0.0),
+        Vec3::new(2.0, 1.0, 9.0),
+        Vec3::new(0.5, 1.5, 10.0),
+    );
+    for m in models() {
+        for turn in [0.0, 0.4, -1.1, 2.0] {
+            let a = BrdfParams {
+                tangent_rotation: turn,
+                ..params(0.08, 0.3, 0.1, -0.2)
+            };
+            let b = BrdfParams {
+                tangent_rotation: turn + std::f64::consts::FRAC_PI_2,
+                ..params(0.3, 0.08, 0.1, -0.2)
+            };
+            let half = BrdfParams {
+                tangent_rotation: turn + PI,
+                ..a
+            };
+            let va = m.radiance(&Prepared::new(a), &lv, 300.0);
+            for other in [b, half, a.canonical_rotation(), b.canonical_rotation()] {
+                let v = m.radiance(&Prepared::new(other), &lv, 300.0);
+                for c in 0..3 {
+                    assert!(
+                        (v[c] - va[c]).abs() <= 1e-9 * va[c].abs().max(1.0),
+                        "{other:?}"
+                    );
+                }
+            }
+            let r = a.canonical_rotation().tangent_rotation;
+            assert!((0.0..std::f64::consts::FRAC_PI_2).contains(&r));
+            // Turned, the lobe is another: the highlight moves.
+            let lobe = BrdfParams {
+                rho_d: [0.0; 3],
+                ..a
+            };
+            let turned = BrdfParams {
+                tangent_rotation: turn + 0.5,
+                ..lobe
+            };
+            let vl = m.radiance(&Prepared::new(lobe), &lv, 300.0);
+            let vt = m.radiance(&Prepared::new(turned), &lv, 300.0);
+            assert!(
+                (vt[0] - vl[0]).abs() > 1e-2 * vl[0],
+                "{} {vt:?} {vl:?}",
+                m.name()
+            );
+        }
+    }
 }
