@@ -419,7 +419,7 @@ impl Problem<'_> {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
@@ -427,7 +427,13 @@ mod tests {
     use svbrdf_core::geometry::Vec3;
 
     /// Flash-like observations of one surface point from a hand-held sweep.
-    fn samples(model: &dyn BrdfModel, truth: &BrdfParams, n: usize, seed: u64) -> Vec<Sample> {
+    /// Flash observations of one surface from a hand-held sweep over a 4 cm patch.
+    pub(crate) fn samples(
+        model: &dyn BrdfModel,
+        truth: &BrdfParams,
+        n: usize,
+        seed: u64,
+    ) -> Vec<Sample> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let p = Prepared::new(*truth);
         (0..n)

@@ -77,38 +77,20 @@ mod tests {
     use super::*;
     use rand::{Rng, SeedableRng};
     use rand_chacha::ChaCha8Rng;
-    use svbrdf_core::brdf::{BrdfModel, LightView, Prepared, Ward};
-    use svbrdf_core::geometry::Vec3;
+    use svbrdf_core::brdf::Ward;
 
     use crate::solver::{Bounds, Sample};
 
-    /// Flash observations of one lobe from a hand-held sweep over a 4 cm patch.
+    /// Flash observations of one lobe from a hand-held sweep over a 4 cm patch, with
+    /// 2% noise, as a video's: without it every lobe fits to rounding error.
     fn samples(truth: &BrdfParams) -> Vec<Sample> {
         let mut rng = ChaCha8Rng::seed_from_u64(3);
-        let p = Prepared::new(*truth);
-        (0..1500)
-            .map(|_| {
-                let cam = Vec3::new(
-                    rng.random_range(-6.0..6.0),
-                    rng.random_range(-6.0..6.0),
-                    rng.random_range(9.0..16.0),
-                );
-                let surf = Vec3::new(
-                    rng.random_range(-2.0..2.0),
-                    rng.random_range(-2.0..2.0),
-                    0.0,
-                );
-                let lv = LightView::from_points(surf, cam + Vec3::new(1.4, -0.3, 0.0), cam);
-                // 2% noise, as a video's: without it every lobe fits to rounding error.
-                let noise = 1.0 + 0.02 * rng.random_range(-1.0..1.0);
-                Sample {
-                    lv,
-                    rgb: Ward.radiance(&p, &lv, 300.0).map(|v| v * noise),
-                    weight: 1.0,
-                    clipped: [false; 3],
-                }
-            })
-            .collect()
+        let mut s = crate::solver::tests::samples(&Ward, truth, 1500, 3);
+        for o in &mut s {
+            let noise = 1.0 + 0.02 * rng.random_range(-1.0..1.0);
+            o.rgb = o.rgb.map(|v| v * noise);
+        }
+        s
     }
 
     fn problem(s: &[Sample]) -> Problem<'_> {
