@@ -15,14 +15,18 @@ pub struct SynthArgs {
     /// Output folder (must not exist unless --overwrite).
     #[arg(long)]
     out: PathBuf,
-    /// Preset: `tiny` (270x480, 3 s, 6x6 cm; seconds to render) or `paper`
-    /// (2160x3840 at 30 fps, 20 s, 20x20 cm, 100 px/cm maps; the paper's setting).
+    /// Preset: `tiny` (270x480, 3 s, 8x8 cm; seconds to render), `paper` (2160x3840
+    /// at 30 fps, 20 s, 20x20 cm, 100 px/cm maps; the paper's setting), `hard` (4K,
+    /// 10 s: bathroom tiles, markers rarely in view, a tilted no-flash reference, room
+    /// light), `hard-small` (`hard` at 540x960, 4 s) or `two-camera` (`tiny` with a
+    /// second, no-flash camera).
     #[arg(long, default_value = "tiny")]
     preset: String,
     /// Random seed; the output is deterministic for a seed.
     #[arg(long)]
     seed: Option<u64>,
-    /// Built-in material: patchwork, leather, brushed-metal or tiles.
+    /// Built-in material: patchwork, leather, brushed-metal, tiles, bathroom-tiles or
+    /// facets (default: the preset's).
     #[arg(long, conflicts_with = "maps")]
     material: Option<String>,
     /// Folder of map images to use as the material: diffuse (sRGB PNG/JPEG or linear

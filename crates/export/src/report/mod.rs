@@ -246,6 +246,16 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
                 ),
             ));
         }
+        if let Some(g) = s["turned_grain"].as_object() {
+            rows.push((
+                "anisotropy".into(),
+                format!(
+                    "turned from the markers' axes on {:.0}% of the surface (median {:.0} degrees from +x towards +y; roughness map B). The glTF export keeps the angle; the Mitsuba export writes it along the nearer axis.",
+                    100.0 * g["share"].as_f64().unwrap_or(0.0),
+                    g["median_deg"].as_f64().unwrap_or(0.0)
+                ),
+            ));
+        }
         rows.push(("fit timings".into(), timings(&s["timings"])));
     }
     page.table(&rows);
@@ -263,7 +273,7 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
             "selection",
             "How the settings were chosen",
             &escape(&format!(
-                "Each setting was fitted {folds} times, each time without one stretch of the video, and asked to predict the frames it had not seen (RMS error of sRGB-encoded values; linear radiance in brackets). The training error always prefers more detail; the held-out error says which setting predicts new views. Least detailed first."
+                "Each setting was fitted {folds} times, each time without one stretch of the video, and asked to predict the frames it had not seen (RMS error of sRGB-encoded values; linear radiance in brackets). The training error always prefers more detail; the held-out error says which setting predicts new views. The configured settings last."
             )),
         );
         let rows: Vec<(String, String)> = c
