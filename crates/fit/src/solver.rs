@@ -460,7 +460,7 @@ pub(crate) mod tests {
             .collect()
     }
 
-    const BOUNDS: Bounds = Bounds {
+    pub(crate) const BOUNDS: Bounds = Bounds {
         alpha_min: 0.02,
         alpha_max: 1.0,
         normal_lo: [-0.785; 2],

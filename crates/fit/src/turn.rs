@@ -79,7 +79,7 @@ mod tests {
     use rand_chacha::ChaCha8Rng;
     use svbrdf_core::brdf::Ward;
 
-    use crate::solver::{Bounds, Sample};
+    use crate::solver::Sample;
 
     /// Flash observations of one lobe from a hand-held sweep over a 4 cm patch, with
     /// 2% noise, as a video's: without it every lobe fits to rounding error.
@@ -98,14 +98,7 @@ mod tests {
             model: &Ward,
             samples: s,
             intensity: [300.0; 3],
-            bounds: Bounds {
-                alpha_min: 0.02,
-                alpha_max: 1.0,
-                normal_lo: [-0.785; 2],
-                normal_hi: [0.785; 2],
-                energy: true,
-                diffuse_only: false,
-            },
+            bounds: crate::solver::tests::BOUNDS,
             tolerance: 1e-9,
         }
     }
