@@ -26,6 +26,7 @@ use svbrdf_core::progress::{NoProgress, Progress};
 use crate::config::FitConfig;
 use crate::observations::Observations;
 use crate::render::{squared_errors, SquaredErrors};
+use crate::stages::{fit_tree, refine_stage, Refined, TreeStage};
 use crate::FitError;
 
 /// A setting the validation compares, as a change of the user's configuration.
@@ -113,7 +114,8 @@ pub struct CandidateScore {
     pub training_rmse: f64,
     /// The same of sRGB-encoded values.
     pub training_srgb_rmse: f64,
-    /// Seconds its validation fits took, all folds.
+    /// Seconds its validation fits took, all folds (a cluster tree shared with the
+    /// defaults counts as theirs).
     pub seconds: f64,
 }
 
@@ -257,28 +259,61 @@ fn validate(
         let train = obs.subset(&keep, step)?;
         let test = obs.subset(mask, step)?;
         let share = keep.iter().filter(|k| **k).count() as f64 / keep.len() as f64;
-        for ((cand, score), secs) in CANDIDATES.iter().zip(scores.iter_mut()).zip(&mut seconds) {
+        // The defaults first: the candidates that change only the per-pixel refinement
+        // share their cluster tree, and `cluster-lobes` is the defaults' fit before
+        // its per-pixel specular step, so neither fits a tree of its own.
+        let default = CANDIDATES
+            .iter()
+            .position(|c| c.name == DEFAULT)
+            .unwrap_or(CANDIDATES.len() - 1);
+        let order = std::iter::once(default).chain((0..CANDIDATES.len()).filter(|&i| i != default));
+        let mut shared: Option<(FitConfig, TreeStage, Refined)> = None;
+        for i in order {
             let tc = Instant::now();
-            let mut c = cand.config(cfg);
+            let mut c = CANDIDATES[i].config(cfg);
             c.select_folds = 0;
             (c.k_min, c.k_max) = (k, k);
             c.refine_prior *= share;
             c.min_cluster_px = c.min_cluster_px.div_ceil(step * step).max(2);
-            // The coarser grid holds a 1/step^2 share of the pixels: a fold whose
-            // training frames leave too few pixels observed cannot be scored.
-            let (maps, summary) = match crate::fit_once(&train, capture, &c, &NoProgress) {
-                Ok(r) => r,
-                Err(FitError::NoData(why)) => {
-                    return Ok(skipped(format!(
-                        "not validated: without a fold's frames {why}; the configured settings are used"
-                    )))
+            let reused = shared.as_ref().and_then(|(dc, tree, refined)| {
+                if !same_tree(&c, dc) {
+                    return None;
                 }
-                Err(e) => return Err(e),
+                let params = match &refined.before_specular {
+                    Some(p) if specular_off_only(&c, dc) => p.clone(),
+                    _ => refine_stage(&train, tree, &c, &NoProgress, false).params,
+                };
+                Some((params, tree.intensity))
+            });
+            let (params, intensity) = match reused {
+                Some(r) => r,
+                // The coarser grid holds a 1/step^2 share of the pixels: a fold whose
+                // training frames leave too few pixels observed cannot be scored.
+                None => match fit_tree(&train, capture, &c, &NoProgress) {
+                    Ok(tree) => {
+                        let refined = refine_stage(&train, &tree, &c, &NoProgress, i == default);
+                        let out = (refined.params.clone(), tree.intensity);
+                        if i == default {
+                            shared = Some((c.clone(), tree, refined));
+                        }
+                        out
+                    }
+                    Err(FitError::NoData(why)) => {
+                        return Ok(skipped(format!(
+                            "not validated: without a fold's frames {why}; the configured settings are used"
+                        )))
+                    }
+                    Err(e) => return Err(e),
+                },
             };
-            let (model, i) = (c.model.model(), summary.light_intensity);
-            score.0.push(squared_errors(&test, &maps.params, model, i));
-            score.1.push(squared_errors(&train, &maps.params, model, i));
-            *secs += tc.elapsed().as_secs_f64();
+            let model = c.model.model();
+            scores[i]
+                .0
+                .push(squared_errors(&test, &params, model, intensity));
+            scores[i]
+                .1
+                .push(squared_errors(&train, &params, model, intensity));
+            seconds[i] += tc.elapsed().as_secs_f64();
         }
     }
     let candidates: Vec<CandidateScore> = CANDIDATES
@@ -316,6 +351,22 @@ fn validate(
             seconds: t.elapsed().as_secs_f64(),
         },
     ))
+}
+
+/// Whether `a` and `b` give the same cluster tree: they differ at most in the per-pixel
+/// refinement's settings.
+fn same_tree(a: &FitConfig, b: &FitConfig) -> bool {
+    let mut a = a.clone();
+    a.refine_prior = b.refine_prior;
+    a.refine_specular = b.refine_specular;
+    a == *b
+}
+
+/// Whether `a` is `b` with the per-pixel specular step switched off.
+fn specular_off_only(a: &FitConfig, b: &FitConfig) -> bool {
+    let mut a = a.clone();
+    a.refine_specular = true;
+    b.refine_specular && a == *b
 }
 
 /// The candidate with the lowest held-out error of sRGB-encoded values, unless
