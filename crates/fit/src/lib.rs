@@ -268,6 +268,40 @@ mod tests {
         (obs, cap, truth)
     }
 
+    /// What the validation's shared cluster trees rely on (`select`): a candidate that
+    /// changes only the per-pixel refinement, fitted from the defaults' tree, gives the
+    /// parameters of its own whole fit, and the defaults' parameters before the
+    /// per-pixel specular step are the fit with `refine_specular` off.
+    #[test]
+    fn refinement_only_settings_fitted_from_a_shared_tree_equal_whole_fits() {
+        let (obs, cap, _) = two_materials();
+        let base = FitConfig {
+            select_folds: 0,
+            ..FitConfig::default()
+        };
+        let tree = stages::fit_tree(&obs, &cap, &base, &NoProgress).unwrap();
+        let refined = stages::refine_stage(&obs, &tree, &base, &NoProgress, true);
+        let whole = |c: &FitConfig| fit_once(&obs, &cap, c, &NoProgress).unwrap().0.params;
+        assert_eq!(refined.params, whole(&base));
+        let strong = FitConfig {
+            refine_prior: base.refine_prior * 8.0,
+            ..base.clone()
+        };
+        let from_tree = stages::refine_stage(&obs, &tree, &strong, &NoProgress, false).params;
+        assert_eq!(from_tree, whole(&strong));
+        assert_ne!(from_tree, refined.params, "the prior changes nothing here");
+        let cluster_lobes = FitConfig {
+            refine_specular: false,
+            ..base.clone()
+        };
+        let before = refined.before_specular.unwrap();
+        assert_eq!(before, whole(&cluster_lobes));
+        assert_ne!(
+            before, refined.params,
+            "no pixel got a lobe of its own here"
+        );
+    }
+
     #[test]
     fn clipped_highlight_peaks_are_said_to_be_lower_bounds() {
         let cfg = FitConfig {
