@@ -280,14 +280,23 @@ mod tests {
             ..FitConfig::default()
         };
         let tree = stages::fit_tree(&obs, &cap, &base, &NoProgress).unwrap();
-        let refined = stages::refine_stage(&obs, &tree, &base, &NoProgress, true);
+        let refined =
+            stages::refine_stage(&obs, &tree, tree.params.clone(), &base, &NoProgress, true);
         let whole = |c: &FitConfig| fit_once(&obs, &cap, c, &NoProgress).unwrap().0.params;
         assert_eq!(refined.params, whole(&base));
         let strong = FitConfig {
             refine_prior: base.refine_prior * 8.0,
             ..base.clone()
         };
-        let from_tree = stages::refine_stage(&obs, &tree, &strong, &NoProgress, false).params;
+        let from_tree = stages::refine_stage(
+            &obs,
+            &tree,
+            tree.params.clone(),
+            &strong,
+            &NoProgress,
+            false,
+        )
+        .params;
         assert_eq!(from_tree, whole(&strong));
         assert_ne!(from_tree, refined.params, "the prior changes nothing here");
         let cluster_lobes = FitConfig {

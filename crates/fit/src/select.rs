@@ -20,13 +20,14 @@
 use std::time::Instant;
 
 use serde::{Deserialize, Serialize};
+use svbrdf_core::brdf::BrdfParams;
 use svbrdf_core::capture::RegisteredCapture;
 use svbrdf_core::progress::{NoProgress, Progress};
 
 use crate::config::FitConfig;
 use crate::observations::Observations;
 use crate::render::{squared_errors, SquaredErrors};
-use crate::stages::{fit_tree, refine_stage, Refined, TreeStage};
+use crate::stages::{fit_tree, refine_stage, TreeStage};
 use crate::FitError;
 
 /// A setting the validation compares, as a change of the user's configuration.
@@ -267,7 +268,9 @@ fn validate(
             .position(|c| c.name == DEFAULT)
             .unwrap_or(CANDIDATES.len() - 1);
         let order = std::iter::once(default).chain((0..CANDIDATES.len()).filter(|&i| i != default));
-        let mut shared: Option<(FitConfig, TreeStage, Refined)> = None;
+        // The defaults' settings, cluster tree and parameters before their per-pixel
+        // specular step.
+        let mut shared: Option<(FitConfig, TreeStage, Option<Vec<BrdfParams>>)> = None;
         for i in order {
             let tc = Instant::now();
             let mut c = CANDIDATES[i].config(cfg);
@@ -275,13 +278,16 @@ fn validate(
             (c.k_min, c.k_max) = (k, k);
             c.refine_prior *= share;
             c.min_cluster_px = c.min_cluster_px.div_ceil(step * step).max(2);
-            let reused = shared.as_ref().and_then(|(dc, tree, refined)| {
+            let reused = shared.as_ref().and_then(|(dc, tree, before_specular)| {
                 if !same_tree(&c, dc) {
                     return None;
                 }
-                let params = match &refined.before_specular {
+                let params = match before_specular {
                     Some(p) if specular_off_only(&c, dc) => p.clone(),
-                    _ => refine_stage(&train, tree, &c, &NoProgress, false).params,
+                    _ => {
+                        let start = tree.params.clone();
+                        refine_stage(&train, tree, start, &c, &NoProgress, false).params
+                    }
                 };
                 Some((params, tree.intensity))
             });
@@ -290,13 +296,21 @@ fn validate(
                 // The coarser grid holds a 1/step^2 share of the pixels: a fold whose
                 // training frames leave too few pixels observed cannot be scored.
                 None => match fit_tree(&train, capture, &c, &NoProgress) {
-                    Ok(tree) => {
-                        let refined = refine_stage(&train, &tree, &c, &NoProgress, i == default);
-                        let out = (refined.params.clone(), tree.intensity);
-                        if i == default {
-                            shared = Some((c.clone(), tree, refined));
+                    Ok(mut tree) => {
+                        let first = i == default;
+                        // The defaults' tree keeps its parameters for the candidates
+                        // that share it.
+                        let start = if first {
+                            tree.params.clone()
+                        } else {
+                            std::mem::take(&mut tree.params)
+                        };
+                        let refined = refine_stage(&train, &tree, start, &c, &NoProgress, first);
+                        let intensity = tree.intensity;
+                        if first {
+                            shared = Some((c.clone(), tree, refined.before_specular));
                         }
-                        out
+                        (refined.params, intensity)
                     }
                     Err(FitError::NoData(why)) => {
                         return Ok(skipped(format!(

@@ -31,7 +31,8 @@ pub(crate) struct TreeStage {
     roots: Vec<u32>,
     leaves: Vec<tree::Leaf>,
     cluster: Vec<u32>,
-    params: Vec<BrdfParams>,
+    /// Every pixel's parameters: its cluster's (the refinement's start).
+    pub(crate) params: Vec<BrdfParams>,
     unconverged: Vec<u32>,
     rmse_clusters: f64,
     timings: Vec<(String, f64)>,
@@ -57,8 +58,10 @@ pub(crate) fn fit_once(
     cfg: &FitConfig,
     progress: &dyn Progress,
 ) -> Result<(FittedMaps, FitSummary), FitError> {
-    let tree = fit_tree(obs, capture, cfg, progress)?;
-    let refined = refine_stage(obs, &tree, cfg, progress, false);
+    let mut tree = fit_tree(obs, capture, cfg, progress)?;
+    // Moved, not copied: the tree's parameters are not needed after the refinement.
+    let start = std::mem::take(&mut tree.params);
+    let refined = refine_stage(obs, &tree, start, cfg, progress, false);
     finish(obs, tree, refined, cfg, progress)
 }
 
@@ -190,6 +193,7 @@ pub(crate) fn fit_tree(
 pub(crate) fn refine_stage(
     obs: &Observations,
     tree: &TreeStage,
+    start: Vec<BrdfParams>,
     cfg: &FitConfig,
     progress: &dyn Progress,
     keep_before_specular: bool,
@@ -203,7 +207,7 @@ pub(crate) fn refine_stage(
         cfg,
     };
     let (covered, cluster, leaves) = (&tree.covered[..], &tree.cluster[..], &tree.leaves[..]);
-    let mut params = tree.params.clone();
+    let mut params = start;
     let mut timings = Vec::new();
     let mut before_specular = None;
     let t = Instant::now();
