@@ -318,6 +318,47 @@ impl PreparedMapping {
     }
 }
 
+/// [`PreparedMapping::plane_to_pixel`] along one row of plane points (one `y`): the
+/// sub-frames whose plane bounding box spans the row are found once, not per point.
+#[derive(Debug, Clone)]
+pub enum RowMapping<'a> {
+    /// A camera.
+    Camera(&'a Camera),
+    /// The sub-frames that can see the row, in the mapping's order.
+    Homographies(Vec<&'a PreparedSubFrame>),
+}
+
+impl PreparedMapping {
+    /// The mapping of the plane points with ordinate `y` (cm).
+    pub fn row(&self, y: f64) -> RowMapping<'_> {
+        match self {
+            Self::Camera(c) => RowMapping::Camera(c),
+            Self::Homographies(subs) => RowMapping::Homographies(
+                subs.iter()
+                    .filter(|s| y >= s.plane_bbox[1] && y <= s.plane_bbox[3])
+                    .collect(),
+            ),
+        }
+    }
+}
+
+impl RowMapping<'_> {
+    /// Frame pixel that sees the plane point `q` of this row (its `y` is the row's);
+    /// the same as [`PreparedMapping::plane_to_pixel`].
+    pub fn plane_to_pixel(&self, q: Vec2) -> Option<Vec2> {
+        match self {
+            Self::Camera(c) => c
+                .project(Vec3::new(q.x, q.y, 0.0))
+                .filter(|p| c.intrinsics.contains(*p)),
+            Self::Homographies(subs) => average(
+                subs.iter()
+                    .filter(|s| q.x >= s.plane_bbox[0] && q.x <= s.plane_bbox[2])
+                    .filter_map(|s| s.inverse.apply(q).filter(|p| s.subframe.contains(*p))),
+            ),
+        }
+    }
+}
+
 fn average(it: impl Iterator<Item = Vec2>) -> Option<Vec2> {
     let (sum, n) = it.fold((Vec2::zeros(), 0usize), |(s, n), p| (s + p, n + 1));
     (n > 0).then(|| sum / n as f64)
@@ -595,6 +636,48 @@ mod tests {
             assert!((back - p).norm() < 1e-6);
         }
         assert!(hm.plane_to_pixel(Vec2::new(100.0, 100.0)).is_none());
+    }
+
+    #[test]
+    fn row_mapping_equals_the_pointwise_mapping() {
+        // Four overlapping sub-frames with slightly different homographies (a
+        // perspective term each), so that points see one, two or four of them.
+        let subframes: Vec<SubFrame> = (0..4)
+            .map(|i| {
+                let (cx, cy) = (f64::from(i % 2), f64::from(i / 2));
+                let e = 1e-4 * f64::from(i + 1);
+                SubFrame {
+                    rect: [
+                        cx * 300.0 - 0.5,
+                        cy * 220.0 - 0.5,
+                        cx * 300.0 + 339.5,
+                        cy * 220.0 + 259.5,
+                    ],
+                    plane_from_pixel: [
+                        [0.01 + e, 0.001, -3.0],
+                        [-0.0005, 0.01, -2.4 + e],
+                        [e * 1e-3, -2e-6, 1.0],
+                    ],
+                }
+            })
+            .collect();
+        let pm = PreparedMapping::new(&frame(FrameMapping::Homographies { subframes })).unwrap();
+        let (mut seen, mut unseen) = (0, 0);
+        for r in 0..60 {
+            let y = -3.0 + 0.1 * f64::from(r);
+            let row = pm.row(y);
+            for c in 0..80 {
+                let q = Vec2::new(-4.0 + 0.1 * f64::from(c), y);
+                let (a, b) = (pm.plane_to_pixel(q), row.plane_to_pixel(q));
+                assert_eq!(a, b, "{q:?}");
+                if a.is_some() {
+                    seen += 1;
+                } else {
+                    unseen += 1;
+                }
+            }
+        }
+        assert!(seen > 1000 && unseen > 100, "{seen} {unseen}");
     }
 
     #[test]

@@ -188,6 +188,48 @@ impl SampleBatch {
         b
     }
 
+    /// The raw observations of pixel `px`, each of weight 1 (what
+    /// [`new`](Self::new) makes of [`Observations::light_view`] and
+    /// [`Observations::color`] samples, without building them); reuses the buffers.
+    pub fn gather(&mut self, obs: &Observations, px: usize) {
+        let r = obs.range(px);
+        self.geom.begin(r.len());
+        let padded = self.geom.padded_len();
+        for a in self.rgb.iter_mut().chain(self.censor.iter_mut()) {
+            a.clear();
+            a.resize(padded, 0.0);
+        }
+        self.weight.clear();
+        self.weight.resize(padded, 0.0);
+        let s = obs.surface(px);
+        for (i, o) in r.enumerate() {
+            let f = &obs.frames[usize::from(obs.frame[o])];
+            let (dl, dv) = (f.light - s, f.camera - s);
+            self.geom.set(
+                i,
+                [dl.x as f32, dl.y as f32, dl.z as f32],
+                [dv.x as f32, dv.y as f32, dv.z as f32],
+            );
+            let (rgb, clipped) = (obs.color(o), obs.clipped(o));
+            for k in 0..3 {
+                self.rgb[k][i] = rgb[k] as f32;
+                self.censor[k][i] = if clipped[k] { 1.0 } else { 0.0 };
+            }
+            self.weight[i] = 1.0;
+        }
+        self.geom.finish();
+    }
+
+    /// Samples held.
+    pub fn len(&self) -> usize {
+        self.geom.len()
+    }
+
+    /// Whether none are held.
+    pub fn is_empty(&self) -> bool {
+        self.geom.is_empty()
+    }
+
     /// Weighted sum of squared errors.
     pub fn cost(&mut self, p: &BrdfParams, intensity: [f64; 3]) -> f64 {
         let w = WardF32::new(&Prepared::new(*p));

@@ -219,8 +219,9 @@ pub fn rectify(
     let mut mask = vec![false; grid.len()];
     let mut c = [0f32; 3];
     for r in 0..grid.height {
+        let row = mapping.row(grid.pixel_centre(0, r).y);
         for col in 0..grid.width {
-            let Some(p) = mapping.plane_to_pixel(grid.pixel_centre(col, r)) else {
+            let Some(p) = row.plane_to_pixel(grid.pixel_centre(col, r)) else {
                 continue;
             };
             if !(p.x >= 0.0 && p.y >= 0.0 && p.x <= (w - 1) as f64 && p.y <= (h - 1) as f64) {

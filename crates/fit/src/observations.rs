@@ -427,9 +427,10 @@ impl ObservationBuilder {
                 let mut out = Vec::with_capacity(c1 - c0);
                 let mut clipped = 0;
                 let mut c = [0f32; 3];
+                let row = mapping.row(grid.pixel_centre(c0, r).y);
                 for col in c0..c1 {
                     let q = grid.pixel_centre(col, r);
-                    let Some(p) = mapping.plane_to_pixel(q) else {
+                    let Some(p) = row.plane_to_pixel(q) else {
                         continue;
                     };
                     if !(p.x >= border && p.y >= border && p.x <= xmax && p.y <= ymax) {
@@ -452,9 +453,10 @@ impl ObservationBuilder {
                         if v >= sat {
                             CLIPPED
                         } else {
-                            (f64::from(v.max(0.0)) * RGB_SCALE)
-                                .round()
-                                .min(f64::from(CLIPPED - 1)) as u16
+                            // Rounded by adding one half (f64::round is a libm call
+                            // on the baseline x86-64 target).
+                            (f64::from(v.max(0.0)) * RGB_SCALE + 0.5).min(f64::from(CLIPPED - 1))
+                                as u16
                         }
                     });
                     let surface = Vec3::new(q.x, q.y, 0.0);

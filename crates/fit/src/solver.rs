@@ -94,6 +94,41 @@ impl Bounds {
             diffuse_only: false,
         }
     }
+
+    /// Project a parameter vector into the feasible set.
+    pub fn project(&self, x: &mut [f64; N_PARAMS], fr: &Freedom) {
+        let b = self;
+        for v in x.iter_mut().take(6) {
+            *v = if v.is_finite() { v.max(0.0) } else { 0.0 };
+        }
+        if b.diffuse_only {
+            x[3..6].fill(0.0);
+        }
+        for c in 0..3 {
+            let s = x[c] + x[3 + c];
+            if b.energy && s > 1.0 {
+                x[c] /= s;
+                x[3 + c] /= s;
+            }
+        }
+        for k in 6..8 {
+            x[k] = if x[k].is_finite() {
+                x[k].clamp(b.alpha_min, b.alpha_max)
+            } else {
+                0.1_f64.clamp(b.alpha_min, b.alpha_max)
+            };
+        }
+        if fr.isotropic {
+            x[7] = x[6];
+        }
+        for k in 8..10 {
+            x[k] = if x[k].is_finite() {
+                x[k].clamp(b.normal_lo[k - 8], b.normal_hi[k - 8])
+            } else {
+                0.0
+            };
+        }
+    }
 }
 
 /// A quadratic pull towards `centre`: adds `sum_k weight[k] * (x_k - centre_k)^2`.
@@ -160,37 +195,7 @@ pub struct Problem<'a> {
 impl Problem<'_> {
     /// Project a parameter vector into the feasible set.
     pub fn project(&self, x: &mut [f64; N_PARAMS], fr: &Freedom) {
-        let b = &self.bounds;
-        for v in x.iter_mut().take(6) {
-            *v = if v.is_finite() { v.max(0.0) } else { 0.0 };
-        }
-        if b.diffuse_only {
-            x[3..6].fill(0.0);
-        }
-        for c in 0..3 {
-            let s = x[c] + x[3 + c];
-            if b.energy && s > 1.0 {
-                x[c] /= s;
-                x[3 + c] /= s;
-            }
-        }
-        for k in 6..8 {
-            x[k] = if x[k].is_finite() {
-                x[k].clamp(b.alpha_min, b.alpha_max)
-            } else {
-                0.1_f64.clamp(b.alpha_min, b.alpha_max)
-            };
-        }
-        if fr.isotropic {
-            x[7] = x[6];
-        }
-        for k in 8..10 {
-            x[k] = if x[k].is_finite() {
-                x[k].clamp(b.normal_lo[k - 8], b.normal_hi[k - 8])
-            } else {
-                0.0
-            };
-        }
+        self.bounds.project(x, fr);
     }
 
     /// Weighted sum of squared errors at `x` with the tangent rotated by `rotation`
@@ -262,7 +267,8 @@ impl Problem<'_> {
 
     /// Fit from `init`, pulled towards `init` by a prior as strong as `strength`
     /// average samples of each parameter: weight `strength * (J^T W J)_kk / n` from the
-    /// Jacobian at `init` (scale-free: no per-parameter tuning).
+    /// Jacobian at `init` (scale-free: no per-parameter tuning). Ward takes the f32
+    /// batch path ([`solve_near_ward`]).
     pub fn solve_near(
         &self,
         init: &BrdfParams,
@@ -270,21 +276,29 @@ impl Problem<'_> {
         strength: f64,
         max_iterations: usize,
     ) -> Solution {
-        let mut x = init.to_array();
-        self.project(&mut x, fr);
-        let first = self.linearise(&x, fr, init.tangent_rotation);
-        let n = self.samples.len().max(1) as f64;
-        let prior = Prior {
-            centre: x,
-            weight: std::array::from_fn(|k| strength * first.1[(k, k)].max(1e-12) / n),
-        };
-        self.solve_from(
-            x,
-            init.tangent_rotation,
+        if self.model.kind() == ModelKind::Ward {
+            let mut batch = SampleBatch::new(self.samples);
+            return solve_near_ward(
+                &mut batch,
+                &self.settings(),
+                init,
+                fr,
+                strength,
+                max_iterations,
+            );
+        }
+        let mut data = Generic {
+            problem: self,
             fr,
-            Some(&prior),
+            rotation: init.tangent_rotation,
+        };
+        near(
+            &mut data,
+            &self.settings(),
+            init,
+            fr,
+            strength,
             max_iterations,
-            Some(first),
         )
     }
 
@@ -298,123 +312,255 @@ impl Problem<'_> {
     ) -> Solution {
         let mut x = init.to_array();
         self.project(&mut x, fr);
-        self.solve_from(x, init.tangent_rotation, fr, prior, max_iterations, None)
+        let rotation = init.tangent_rotation;
+        let settings = self.settings();
+        let fit = |data: &mut dyn DataTerm| {
+            levenberg_marquardt(data, x, fr, &settings, prior, max_iterations, None)
+        };
+        if self.model.kind() == ModelKind::Ward {
+            // The f32 batch path: the same figures to about 1e-5 relative.
+            let mut batch = SampleBatch::new(self.samples);
+            fit(&mut WardBatch {
+                batch: &mut batch,
+                intensity: self.intensity,
+                isotropic: fr.isotropic,
+                rotation,
+            })
+        } else {
+            fit(&mut Generic {
+                problem: self,
+                fr,
+                rotation,
+            })
+        }
     }
 
-    /// The tangent rotation `rotation` is held fixed.
-    fn solve_from(
-        &self,
-        mut x: [f64; N_PARAMS],
-        rotation: f64,
-        fr: &Freedom,
-        prior: Option<&Prior>,
-        max_iterations: usize,
-        first: Option<(f64, Mat, Vector)>,
-    ) -> Solution {
-        let prior_cost = |x: &[f64; N_PARAMS]| {
-            prior.map_or(0.0, |p| {
-                (0..N_PARAMS)
-                    .map(|k| p.weight[k] * (x[k] - p.centre[k]).powi(2))
-                    .sum()
-            })
-        };
-        let add_prior = |x: &[f64; N_PARAMS], (c, mut a, mut g): (f64, Mat, Vector)| {
-            if let Some(p) = prior {
-                for k in 0..N_PARAMS {
-                    a[(k, k)] += p.weight[k];
-                    g[k] += p.weight[k] * (x[k] - p.centre[k]);
-                }
-            }
-            (c, a, g)
-        };
-        // Ward takes the f32 batch path (same figures to about 1e-5 relative).
-        let batch = (self.model.kind() == ModelKind::Ward)
-            .then(|| std::cell::RefCell::new(SampleBatch::new(self.samples)));
-        let data_lin = |x: &[f64; N_PARAMS]| match &batch {
-            Some(b) => b.borrow_mut().linearise(
-                &BrdfParams::from_array_rotated(x, rotation),
-                self.intensity,
-                fr.isotropic,
-            ),
-            None => self.linearise(x, fr, rotation),
-        };
-        let eval_cost = |x: &[f64; N_PARAMS]| match &batch {
-            Some(b) => b
-                .borrow_mut()
-                .cost(&BrdfParams::from_array_rotated(x, rotation), self.intensity),
-            None => self.cost(x, rotation),
-        };
-        let lin = |x: &[f64; N_PARAMS]| add_prior(x, data_lin(x));
-        let (mut data_cost, mut jtj, mut jtr) = match first {
-            Some(f) => add_prior(&x, f),
-            None => lin(&x),
-        };
-        let mut total = data_cost + prior_cost(&x);
-        let mut lambda = 1e-3;
-        let mut iterations = 0;
-        let mut converged = false;
-        let b = self.bounds;
-        for _ in 0..max_iterations {
-            // Active set: fixed parameters and parameters pressed against a bound.
-            let mut active = [false; N_PARAMS];
-            for k in 0..N_PARAMS {
-                let g = jtr[k];
-                let at_low = match k {
-                    0..=5 => x[k] <= 0.0,
-                    6 | 7 => x[k] <= b.alpha_min,
-                    _ => x[k] <= b.normal_lo[k - 8],
-                };
-                let at_high = match k {
-                    0..=5 => false,
-                    6 | 7 => x[k] >= b.alpha_max,
-                    _ => x[k] >= b.normal_hi[k - 8],
-                };
-                active[k] = !fr.free[k]
-                    || (fr.isotropic && k == 7)
-                    || (at_low && g > 0.0)
-                    || (at_high && g < 0.0);
-            }
-            let Some(step) = damped_step(jtj, -jtr, &active, lambda) else {
-                lambda *= 10.0;
-                if lambda > 1e10 {
-                    converged = true;
-                    break;
-                }
-                continue;
-            };
+    /// What the solver loop needs of the problem besides its data.
+    fn settings(&self) -> SolveSettings {
+        SolveSettings {
+            intensity: self.intensity,
+            bounds: self.bounds,
+            tolerance: self.tolerance,
+        }
+    }
+}
 
-            let mut trial = x;
+/// Light intensity, bounds and stopping tolerance of one fit (the fields of
+/// [`Problem`] other than its model and samples).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct SolveSettings {
+    /// Light intensity per channel.
+    pub intensity: [f64; 3],
+    /// Bounds.
+    pub bounds: Bounds,
+    /// Stop when an accepted step lowers the cost by less than this fraction.
+    pub tolerance: f64,
+}
+
+/// The data term of a fit: its cost, and its cost with `J^T W J` and `J^T W r`, at a
+/// parameter vector (the tangent rotation is the data term's, held fixed).
+trait DataTerm {
+    /// Cost, `J^T W J` and `J^T W r` at `x`.
+    fn linearise(&mut self, x: &[f64; N_PARAMS]) -> (f64, Mat, Vector);
+    /// Cost at `x`.
+    fn cost(&mut self, x: &[f64; N_PARAMS]) -> f64;
+    /// Samples (the prior's average is over them).
+    fn len(&self) -> usize;
+    /// The tangent rotation, radians.
+    fn rotation(&self) -> f64;
+}
+
+/// Any model on [`Sample`]s, in f64.
+struct Generic<'a, 'b> {
+    problem: &'a Problem<'b>,
+    fr: &'a Freedom,
+    rotation: f64,
+}
+
+impl DataTerm for Generic<'_, '_> {
+    fn linearise(&mut self, x: &[f64; N_PARAMS]) -> (f64, Mat, Vector) {
+        self.problem.linearise(x, self.fr, self.rotation)
+    }
+    fn cost(&mut self, x: &[f64; N_PARAMS]) -> f64 {
+        self.problem.cost(x, self.rotation)
+    }
+    fn len(&self) -> usize {
+        self.problem.samples.len()
+    }
+    fn rotation(&self) -> f64 {
+        self.rotation
+    }
+}
+
+/// Ward on a [`SampleBatch`], in f32 lanes.
+struct WardBatch<'a> {
+    batch: &'a mut SampleBatch,
+    intensity: [f64; 3],
+    isotropic: bool,
+    rotation: f64,
+}
+
+impl DataTerm for WardBatch<'_> {
+    fn linearise(&mut self, x: &[f64; N_PARAMS]) -> (f64, Mat, Vector) {
+        let p = BrdfParams::from_array_rotated(x, self.rotation);
+        self.batch.linearise(&p, self.intensity, self.isotropic)
+    }
+    fn cost(&mut self, x: &[f64; N_PARAMS]) -> f64 {
+        let p = BrdfParams::from_array_rotated(x, self.rotation);
+        self.batch.cost(&p, self.intensity)
+    }
+    fn len(&self) -> usize {
+        self.batch.len()
+    }
+    fn rotation(&self) -> f64 {
+        self.rotation
+    }
+}
+
+/// [`Problem::solve_near`] for Ward on samples already in batch form (the per-pixel
+/// specular refinement gathers each pixel's raw observations straight into one,
+/// without building [`Sample`]s).
+pub(crate) fn solve_near_ward(
+    batch: &mut SampleBatch,
+    settings: &SolveSettings,
+    init: &BrdfParams,
+    fr: &Freedom,
+    strength: f64,
+    max_iterations: usize,
+) -> Solution {
+    let mut data = WardBatch {
+        batch,
+        intensity: settings.intensity,
+        isotropic: fr.isotropic,
+        rotation: init.tangent_rotation,
+    };
+    near(&mut data, settings, init, fr, strength, max_iterations)
+}
+
+/// [`Problem::solve_near`] on any data term.
+fn near(
+    data: &mut dyn DataTerm,
+    settings: &SolveSettings,
+    init: &BrdfParams,
+    fr: &Freedom,
+    strength: f64,
+    max_iterations: usize,
+) -> Solution {
+    let mut x = init.to_array();
+    settings.bounds.project(&mut x, fr);
+    let first = data.linearise(&x);
+    let n = data.len().max(1) as f64;
+    let prior = Prior {
+        centre: x,
+        weight: std::array::from_fn(|k| strength * first.1[(k, k)].max(1e-12) / n),
+    };
+    levenberg_marquardt(
+        data,
+        x,
+        fr,
+        settings,
+        Some(&prior),
+        max_iterations,
+        Some(first),
+    )
+}
+
+/// The solver loop from the feasible `x` (the data term's tangent rotation is held
+/// fixed); `first` is the data term's linearisation at `x` when already known.
+fn levenberg_marquardt(
+    data: &mut dyn DataTerm,
+    mut x: [f64; N_PARAMS],
+    fr: &Freedom,
+    settings: &SolveSettings,
+    prior: Option<&Prior>,
+    max_iterations: usize,
+    first: Option<(f64, Mat, Vector)>,
+) -> Solution {
+    let prior_cost = |x: &[f64; N_PARAMS]| {
+        prior.map_or(0.0, |p| {
+            (0..N_PARAMS)
+                .map(|k| p.weight[k] * (x[k] - p.centre[k]).powi(2))
+                .sum()
+        })
+    };
+    let add_prior = |x: &[f64; N_PARAMS], (c, mut a, mut g): (f64, Mat, Vector)| {
+        if let Some(p) = prior {
             for k in 0..N_PARAMS {
-                trial[k] += step[k];
-            }
-            self.project(&mut trial, fr);
-            let new_data = eval_cost(&trial);
-            let new_total = new_data + prior_cost(&trial);
-            if new_total.is_finite() && new_total < total {
-                let rel = (total - new_total) / total.max(1e-300);
-                x = trial;
-                iterations += 1;
-                lambda = (lambda / 3.0).max(1e-9);
-                (data_cost, jtj, jtr) = lin(&x);
-                total = data_cost + prior_cost(&x);
-                if rel < self.tolerance {
-                    converged = true;
-                    break;
-                }
-            } else {
-                lambda *= 4.0;
-                if lambda > 1e10 {
-                    converged = true;
-                    break;
-                }
+                a[(k, k)] += p.weight[k];
+                g[k] += p.weight[k] * (x[k] - p.centre[k]);
             }
         }
-        Solution {
-            params: BrdfParams::from_array_rotated(&x, rotation),
-            cost: data_cost,
-            iterations,
-            converged,
+        (c, a, g)
+    };
+    let first = match first {
+        Some(f) => f,
+        None => data.linearise(&x),
+    };
+    let (mut data_cost, mut jtj, mut jtr) = add_prior(&x, first);
+    let mut total = data_cost + prior_cost(&x);
+    let mut lambda = 1e-3;
+    let mut iterations = 0;
+    let mut converged = false;
+    let b = settings.bounds;
+    for _ in 0..max_iterations {
+        // Active set: fixed parameters and parameters pressed against a bound.
+        let mut active = [false; N_PARAMS];
+        for k in 0..N_PARAMS {
+            let g = jtr[k];
+            let at_low = match k {
+                0..=5 => x[k] <= 0.0,
+                6 | 7 => x[k] <= b.alpha_min,
+                _ => x[k] <= b.normal_lo[k - 8],
+            };
+            let at_high = match k {
+                0..=5 => false,
+                6 | 7 => x[k] >= b.alpha_max,
+                _ => x[k] >= b.normal_hi[k - 8],
+            };
+            active[k] = !fr.free[k]
+                || (fr.isotropic && k == 7)
+                || (at_low && g > 0.0)
+                || (at_high && g < 0.0);
         }
+        let Some(step) = damped_step(jtj, -jtr, &active, lambda) else {
+            lambda *= 10.0;
+            if lambda > 1e10 {
+                converged = true;
+                break;
+            }
+            continue;
+        };
+
+        let mut trial = x;
+        for k in 0..N_PARAMS {
+            trial[k] += step[k];
+        }
+        b.project(&mut trial, fr);
+        let new_total = data.cost(&trial) + prior_cost(&trial);
+        if new_total.is_finite() && new_total < total {
+            let rel = (total - new_total) / total.max(1e-300);
+            x = trial;
+            iterations += 1;
+            lambda = (lambda / 3.0).max(1e-9);
+            (data_cost, jtj, jtr) = add_prior(&x, data.linearise(&x));
+            total = data_cost + prior_cost(&x);
+            if rel < settings.tolerance {
+                converged = true;
+                break;
+            }
+        } else {
+            lambda *= 4.0;
+            if lambda > 1e10 {
+                converged = true;
+                break;
+            }
+        }
+    }
+    Solution {
+        params: BrdfParams::from_array_rotated(&x, data.rotation()),
+        cost: data_cost,
+        iterations,
+        converged,
     }
 }
 
