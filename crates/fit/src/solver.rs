@@ -502,7 +502,7 @@ fn levenberg_marquardt(
     let mut iterations = 0;
     let mut converged = false;
     let b = settings.bounds;
-    for _ in 0..max_iterations {
+    for it in 0..max_iterations {
         // Active set: fixed parameters and parameters pressed against a bound.
         let mut active = [false; N_PARAMS];
         for k in 0..N_PARAMS {
@@ -536,18 +536,22 @@ fn levenberg_marquardt(
             trial[k] += step[k];
         }
         b.project(&mut trial, fr);
-        let new_total = data.cost(&trial) + prior_cost(&trial);
+        let new_data = data.cost(&trial);
+        let new_total = new_data + prior_cost(&trial);
         if new_total.is_finite() && new_total < total {
             let rel = (total - new_total) / total.max(1e-300);
             x = trial;
             iterations += 1;
             lambda = (lambda / 3.0).max(1e-9);
-            (data_cost, jtj, jtr) = add_prior(&x, data.linearise(&x));
-            total = data_cost + prior_cost(&x);
-            if rel < settings.tolerance {
-                converged = true;
+            // No linearisation at the last point: nothing would use it (the per-pixel
+            // refinements stop after three iterations, so this is one of seven).
+            converged = rel < settings.tolerance;
+            if converged || it + 1 == max_iterations {
+                data_cost = new_data;
                 break;
             }
+            (data_cost, jtj, jtr) = add_prior(&x, data.linearise(&x));
+            total = data_cost + prior_cost(&x);
         } else {
             lambda *= 4.0;
             if lambda > 1e10 {
