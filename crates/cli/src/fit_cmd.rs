@@ -194,6 +194,13 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
             s.final_clusters
         );
     }
+    if s.lobes_from_parent > 0 {
+        say!(
+            "{} of {} final clusters kept their parent's lobe: no frame saw the highlight of the lobe their own observations gave, so it is not invented (clusters.json: lobe_from_parent).",
+            s.lobes_from_parent,
+            s.final_clusters
+        );
+    }
     crate::print_timings(&s.timings);
     crate::print_warnings(&s.warnings);
     Ok(run)

@@ -434,6 +434,7 @@ pub(crate) fn finish(
             .iter()
             .filter(|c| c.is_some_and(|c| c[0] == 0.0))
             .count(),
+        lobes_from_parent: leaves.iter().filter(|l| l.lobe_from_parent).count(),
         turned_grain: summary::turned_grain(&params, &covered),
         selection: None,
     };
@@ -459,6 +460,7 @@ pub(crate) fn finish(
                     rmse: (l.sse / (3 * l.observations.max(1)) as f64).sqrt(),
                     converged: l.converged,
                     specular_seen: cluster_specular[i],
+                    lobe_from_parent: l.lobe_from_parent,
                 })
                 .collect(),
         },

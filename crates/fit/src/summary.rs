@@ -61,6 +61,11 @@ pub struct ClusterInfo {
     /// peak has a lobe fitted on flanks alone.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub specular_seen: Option<[f64; 3]>,
+    /// Whether it kept its parent's lobe (`params` holds it) because no frame saw the
+    /// lobe fitted from its own observations (see [`tree`]'s `hold_unseen_lobe`);
+    /// written only when true.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub lobe_from_parent: bool,
 }
 
 /// How the light intensity was obtained.
@@ -141,6 +146,10 @@ pub struct FitSummary {
     /// lobe rests on flanks, clipped peaks or nothing.
     #[serde(default)]
     pub clusters_without_peak: usize,
+    /// Final clusters that kept their parent's lobe because no frame saw the lobe
+    /// their own observations gave (clusters.json: `lobe_from_parent`).
+    #[serde(default)]
+    pub lobes_from_parent: usize,
     /// Anisotropic pixels whose lobe the fit turned away from the plane's axes
     /// ([`crate::FitConfig::tangent_rotation_depth`]); absent when none.
     #[serde(default)]
