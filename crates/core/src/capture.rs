@@ -303,16 +303,14 @@ impl PreparedMapping {
     /// Frame pixel that sees a plane point (cm); `None` outside the image.
     pub fn plane_to_pixel(&self, q: Vec2) -> Option<Vec2> {
         match self {
-            Self::Camera(c) => c
-                .project(Vec3::new(q.x, q.y, 0.0))
-                .filter(|p| c.intrinsics.contains(*p)),
+            Self::Camera(c) => camera_pixel(c, q),
             Self::Homographies(subs) => average(
                 subs.iter()
                     .filter(|s| {
                         let b = &s.plane_bbox;
                         q.x >= b[0] && q.y >= b[1] && q.x <= b[2] && q.y <= b[3]
                     })
-                    .filter_map(|s| s.inverse.apply(q).filter(|p| s.subframe.contains(*p))),
+                    .filter_map(|s| s.pixel(q)),
             ),
         }
     }
@@ -347,16 +345,27 @@ impl RowMapping<'_> {
     /// the same as [`PreparedMapping::plane_to_pixel`].
     pub fn plane_to_pixel(&self, q: Vec2) -> Option<Vec2> {
         match self {
-            Self::Camera(c) => c
-                .project(Vec3::new(q.x, q.y, 0.0))
-                .filter(|p| c.intrinsics.contains(*p)),
+            Self::Camera(c) => camera_pixel(c, q),
             Self::Homographies(subs) => average(
                 subs.iter()
                     .filter(|s| q.x >= s.plane_bbox[0] && q.x <= s.plane_bbox[2])
-                    .filter_map(|s| s.inverse.apply(q).filter(|p| s.subframe.contains(*p))),
+                    .filter_map(|s| s.pixel(q)),
             ),
         }
     }
+}
+
+impl PreparedSubFrame {
+    /// The pixel of this sub-frame that sees plane point `q`, if inside it.
+    fn pixel(&self, q: Vec2) -> Option<Vec2> {
+        self.inverse.apply(q).filter(|p| self.subframe.contains(*p))
+    }
+}
+
+/// The pixel of camera `c` that sees plane point `q`, if inside the image.
+fn camera_pixel(c: &Camera, q: Vec2) -> Option<Vec2> {
+    c.project(Vec3::new(q.x, q.y, 0.0))
+        .filter(|p| c.intrinsics.contains(*p))
 }
 
 fn average(it: impl Iterator<Item = Vec2>) -> Option<Vec2> {

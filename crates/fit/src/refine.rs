@@ -76,15 +76,7 @@ pub(crate) fn refine(
                     solve_near_ward(b, &settings, p, &freedom, prior, iterations).params
                 })
             } else {
-                let samples: Vec<Sample> = obs
-                    .range(px)
-                    .map(|o| Sample {
-                        lv: obs.light_view(px, o),
-                        rgb: obs.color(o),
-                        weight: 1.0,
-                        clipped: obs.clipped(o),
-                    })
-                    .collect();
+                let samples = pixel_samples(obs, px);
                 let prob = Problem {
                     model: ctx.model,
                     samples: &samples,
@@ -98,6 +90,18 @@ pub(crate) fn refine(
                 *p = q;
             }
         });
+}
+
+/// Pixel `px`'s raw observations as solver samples, each of weight 1.
+fn pixel_samples(obs: &crate::observations::Observations, px: usize) -> Vec<Sample> {
+    obs.range(px)
+        .map(|o| Sample {
+            lv: obs.light_view(px, o),
+            rgb: obs.color(o),
+            weight: 1.0,
+            clipped: obs.clipped(o),
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -155,15 +159,7 @@ mod tests {
         };
         let mut batch = fast::SampleBatch::default();
         for px in [0, 4, 8] {
-            let samples: Vec<Sample> = obs
-                .range(px)
-                .map(|o| Sample {
-                    lv: obs.light_view(px, o),
-                    rgb: obs.color(o),
-                    weight: 1.0,
-                    clipped: obs.clipped(o),
-                })
-                .collect();
+            let samples = pixel_samples(&obs, px);
             let prob = Problem {
                 model: &Ward,
                 samples: &samples,
