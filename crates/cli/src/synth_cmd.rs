@@ -98,6 +98,15 @@ pub struct SynthArgs {
     /// photos/ with their camera description photos_camera.json (for `align --photos`).
     #[arg(long)]
     photos: Option<u32>,
+    /// Instead of a video capture, render this many flash photos (2-100) of a 6.85 cm
+    /// patch in the MaterialGAN layout that `svbrdf import` reads (photos already
+    /// rectified onto the plane, flash at the camera 16-19 cm above it, as the public
+    /// real sets), with the patch's true maps in OUT/ground_truth/.
+    #[arg(long, value_name = "N", conflicts_with_all = ["photos", "second_camera", "also_video_format"])]
+    materialgan: Option<u32>,
+    /// Width and height of the --materialgan photos, pixels (default 512).
+    #[arg(long, value_name = "PX", requires = "materialgan")]
+    materialgan_px: Option<u32>,
     /// Replace the output folder if it exists.
     #[arg(long)]
     overwrite: bool,
@@ -113,6 +122,37 @@ pub struct DemoArgs {
 /// `svbrdf synth`: render the capture the arguments describe and list what was written.
 pub fn run(a: &SynthArgs) -> Result<()> {
     let cfg = synth_config(a)?;
+    if let Some(photos) = a.materialgan {
+        let mut spec = svbrdf_synth::MaterialGanSpec {
+            photos,
+            ..Default::default()
+        };
+        if let Some(px) = a.materialgan_px {
+            spec.size_px = px;
+        }
+        svbrdf_cv::set_single_threaded()?;
+        let progress = progress::Bars::new();
+        let s = svbrdf_synth::synthesize_materialgan(&cfg, &spec, &a.out, a.overwrite, &progress)
+            .with_context(|| format!("synthesizing into {}", a.out.display()))?;
+        print_timings(&progress.timings());
+        println!("wrote {}", s.out.display());
+        for f in &s.files {
+            println!("  {f}");
+        }
+        println!(
+            "{} photos of a {} cm patch at {} px ({} material, {} model); {:.2}% of the pixels have a clipped channel",
+            spec.photos,
+            spec.width_cm,
+            spec.size_px,
+            match &cfg.material {
+                MaterialSource::Procedural(m) => m.clone(),
+                MaterialSource::Maps(p) => p.display().to_string(),
+            },
+            format!("{:?}", cfg.brdf).to_lowercase(),
+            100.0 * s.clipped_share
+        );
+        return Ok(());
+    }
     print_summary(&run_synth(&cfg, &a.out, a.overwrite)?);
     Ok(())
 }

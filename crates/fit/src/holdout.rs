@@ -26,6 +26,11 @@ pub const EVAL_DIR: &str = "eval";
 /// The figures.
 pub const EVAL_FILE: &str = "eval.json";
 
+/// The largest linear value a photo or frame can record (8-bit code 255, the top of a
+/// 10-bit or HDR stream as we decode it: docs/CONVENTIONS.md). Renderings are clipped
+/// here before the linear comparison, as the camera clipped the photo.
+pub const RECORDED_MAX: f32 = 1.0;
+
 /// Errors of one held-out image.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct HoldoutError {
@@ -39,13 +44,23 @@ pub struct HoldoutError {
     pub light_position: [f64; 3],
     /// Compared pixels (those the frame sees).
     pub pixels: usize,
-    /// RMSE of linear RGB.
+    /// RMSE of linear RGB, the rendering clipped at [`RECORDED_MAX`] as the camera
+    /// would have recorded it (a highlight predicted at 20 where the photo shows its
+    /// clipped 1 is right, not 19 off).
     pub rmse_linear: f64,
     /// RMSE divided by the photo's mean linear value.
     pub relative_rmse_linear: f64,
+    /// [`rmse_linear`](Self::rmse_linear) without clipping the rendering (before
+    /// session 26 this was `rmse_linear`).
+    #[serde(default)]
+    pub rmse_linear_unclipped: f64,
+    /// The same divided by the photo's mean linear value.
+    #[serde(default)]
+    pub relative_rmse_linear_unclipped: f64,
     /// RMSE of sRGB-encoded values in [0, 1] (clamped).
     pub rmse_srgb: f64,
-    /// Mean SSIM over the three channels, linear values (dynamic range 1).
+    /// Mean SSIM over the three channels, linear values (dynamic range 1; the rendering
+    /// clipped at [`RECORDED_MAX`]).
     pub ssim_linear: f64,
     /// Mean SSIM over the three channels, sRGB values.
     pub ssim_srgb: f64,
@@ -102,6 +117,12 @@ pub struct MeanErrors {
     /// See [`HoldoutError`].
     pub relative_rmse_linear: f64,
     /// See [`HoldoutError`].
+    #[serde(default)]
+    pub rmse_linear_unclipped: f64,
+    /// See [`HoldoutError`].
+    #[serde(default)]
+    pub relative_rmse_linear_unclipped: f64,
+    /// See [`HoldoutError`].
     pub rmse_srgb: f64,
     /// See [`HoldoutError`].
     pub ssim_linear: f64,
@@ -125,6 +146,8 @@ impl MeanErrors {
             }
             m.rmse_linear += e.rmse_linear;
             m.relative_rmse_linear += e.relative_rmse_linear;
+            m.rmse_linear_unclipped += e.rmse_linear_unclipped;
+            m.relative_rmse_linear_unclipped += e.relative_rmse_linear_unclipped;
             m.rmse_srgb += e.rmse_srgb;
             m.ssim_linear += e.ssim_linear;
             m.ssim_srgb += e.ssim_srgb;
@@ -133,6 +156,8 @@ impl MeanErrors {
         if n > 0.0 {
             m.rmse_linear /= n;
             m.relative_rmse_linear /= n;
+            m.rmse_linear_unclipped /= n;
+            m.relative_rmse_linear_unclipped /= n;
             m.rmse_srgb /= n;
             m.ssim_linear /= n;
             m.ssim_srgb /= n;
@@ -434,7 +459,12 @@ pub fn evaluate_holdout(
             Vec3::from(f.light_position),
             Vec3::from(f.camera_position),
         );
-        let (rl, mean) = rmse(&photo, &ours, &mask);
+        let (rl_raw, mean) = rmse(&photo, &ours, &mask);
+        let mut ours = ours;
+        for v in &mut ours.data {
+            *v = v.min(RECORDED_MAX);
+        }
+        let (rl, _) = rmse(&photo, &ours, &mask);
         let (ps, os) = (to_srgb(&photo), to_srgb(&ours));
         let (rs, _) = rmse(&ps, &os, &mask);
         let flip = match flip {
@@ -465,6 +495,8 @@ pub fn evaluate_holdout(
             pixels: mask.iter().filter(|m| **m).count(),
             rmse_linear: rl,
             relative_rmse_linear: if mean > 0.0 { rl / mean } else { 0.0 },
+            rmse_linear_unclipped: rl_raw,
+            relative_rmse_linear_unclipped: if mean > 0.0 { rl_raw / mean } else { 0.0 },
             rmse_srgb: rs,
             ssim_linear: ssim(&photo, &ours, &mask),
             ssim_srgb: ssim(&ps, &os, &mask),

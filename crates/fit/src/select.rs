@@ -1,8 +1,9 @@
 //! Choosing the fit's complexity by prediction, not by training residual.
 //!
 //! The fit's settings trade detail against noise: whether there is a specular lobe at
-//! all, how readily clusters split, how hard the per-pixel refinement is pulled towards
-//! its cluster, whether a pixel whose highlight was seen may have its own lobe. The training
+//! all, how readily clusters split, whether pixels are refined on their own at all and
+//! how hard that refinement is pulled towards its cluster, whether a pixel whose
+//! highlight was seen may have its own lobe. The training
 //! residual always prefers the most detailed setting; what users render is the material
 //! under lights the video never showed. So before the fit, the capture's frames are cut
 //! into `2 k` contiguous stretches and fold `i` holds out stretches `i` and `i + k`
@@ -62,7 +63,7 @@ pub const DEFAULT: &str = "default";
 pub const MARGIN: f64 = 0.05;
 
 /// The settings compared, from least to most detailed.
-pub const CANDIDATES: [Candidate; 6] = [
+pub const CANDIDATES: [Candidate; 7] = [
     Candidate {
         name: "diffuse-only",
         settings: "no specular lobe (Lambertian)",
@@ -72,6 +73,11 @@ pub const CANDIDATES: [Candidate; 6] = [
         name: "fewer-clusters",
         settings: "a cluster splits only if that lowers its error by 10% (min_split_gain 0.1)",
         apply: |c| c.min_split_gain = c.min_split_gain.max(0.1),
+    },
+    Candidate {
+        name: "cluster-maps",
+        settings: "maps constant within each cluster, as the paper's (no per-pixel refinement)",
+        apply: |c| c.refine = false,
     },
     Candidate {
         name: "strong-prior",
@@ -261,8 +267,9 @@ fn validate(
         let test = obs.subset(mask, step)?;
         let share = keep.iter().filter(|k| **k).count() as f64 / keep.len() as f64;
         // The defaults first: the candidates that change only the per-pixel refinement
-        // share their cluster tree, and `cluster-lobes` is the defaults' fit before
-        // its per-pixel specular step, so neither fits a tree of its own.
+        // share their cluster tree (`cluster-maps` is that tree without refinement),
+        // and `cluster-lobes` is the defaults' fit before its per-pixel specular step,
+        // so none fits a tree of its own.
         let default = CANDIDATES
             .iter()
             .position(|c| c.name == DEFAULT)
@@ -371,6 +378,7 @@ fn validate(
 /// refinement's settings.
 fn same_tree(a: &FitConfig, b: &FitConfig) -> bool {
     let mut a = a.clone();
+    a.refine = b.refine;
     a.refine_prior = b.refine_prior;
     a.refine_specular = b.refine_specular;
     a == *b
@@ -441,6 +449,34 @@ mod tests {
         // Fold 0 holds frames 0-4 and 15-19.
         let held: Vec<usize> = (0..30).filter(|&f| m[0][f]).collect();
         assert_eq!(held, vec![0, 1, 2, 3, 4, 15, 16, 17, 18, 19]);
+    }
+
+    #[test]
+    fn refinement_candidates_share_the_defaults_tree() {
+        let base = FitConfig::default();
+        let of = |name: &str| {
+            CANDIDATES
+                .iter()
+                .find(|c| c.name == name)
+                .map(|c| c.config(&base))
+                .unwrap()
+        };
+        let maps = of("cluster-maps");
+        assert!(!maps.refine && base.refine);
+        for name in ["cluster-maps", "strong-prior", "cluster-lobes"] {
+            assert!(same_tree(&of(name), &base), "{name}");
+        }
+        for name in ["diffuse-only", "fewer-clusters", "turned-grain"] {
+            assert!(!same_tree(&of(name), &base), "{name}");
+        }
+        assert!(specular_off_only(&of("cluster-lobes"), &base));
+        assert!(!specular_off_only(&maps, &base));
+        // Every name once, the defaults last.
+        let names: Vec<&str> = CANDIDATES.iter().map(|c| c.name).collect();
+        assert_eq!(names.last(), Some(&DEFAULT));
+        for n in &names {
+            assert_eq!(names.iter().filter(|m| *m == n).count(), 1, "{n}");
+        }
     }
 
     fn score(name: &str, rmse: f64) -> CandidateScore {

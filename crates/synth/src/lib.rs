@@ -25,6 +25,7 @@
 mod cameras;
 pub mod config;
 pub mod material;
+pub mod materialgan;
 mod noise;
 mod presets;
 pub mod render;
@@ -51,6 +52,7 @@ use svbrdf_cv::CvError;
 use cameras::{render_photos, render_second_camera};
 pub use config::{MaterialSource, SynthConfig};
 use material::MaterialMaps;
+pub use materialgan::{synthesize_materialgan, MaterialGanSpec, MaterialGanSummary};
 use render::{expose, expose_linear, render_linear, Exposure, Lighting};
 use scene::Scene;
 use trajectory::Sweep;
@@ -127,6 +129,44 @@ fn visible_markers(cam: &Camera, scene: &Scene) -> Vec<i32> {
         .collect()
 }
 
+/// The scene of `cfg` (its material, rasterised at `map_px_per_cm` over `region` and
+/// the markers' surroundings, and the four markers at the region's corners).
+pub(crate) fn build_scene(
+    cfg: &SynthConfig,
+    region: Region,
+    map_px_per_cm: f64,
+) -> Result<Scene, SynthError> {
+    let dict = Dictionary::from_name(&cfg.markers.dictionary)?;
+    // A whole number of texels, so the ground-truth crop shares the render raster exactly.
+    let margin = ((cfg.markers.size_cm + cfg.markers.paper_margin_cm + 2.0) * map_px_per_cm).ceil()
+        / map_px_per_cm;
+    let grid = PlaneGrid::new(region.expanded(margin), map_px_per_cm)?;
+    let material = match &cfg.material {
+        MaterialSource::Procedural(name) => MaterialMaps::procedural(
+            name,
+            grid,
+            cfg.feature_cm,
+            cfg.grain_angle_deg.to_radians(),
+            cfg.seed,
+        )?,
+        MaterialSource::Maps(path) => MaterialMaps::from_folder(path, grid, region)?,
+    };
+    let patterns = cfg
+        .markers
+        .ids
+        .iter()
+        .map(|&id| marker_pattern(dict, id).map(|p| (id, p.cells, p.white)))
+        .collect::<Result<Vec<_>, _>>()?;
+    Ok(Scene::new(
+        material,
+        region,
+        patterns,
+        cfg.markers.size_cm,
+        cfg.markers.paper_margin_cm,
+        cfg.seed,
+    ))
+}
+
 /// Render a complete capture into `out` (which must not exist unless `overwrite`).
 /// Everything is written into a temporary sibling folder that is renamed at the end,
 /// so an interrupted run never leaves a folder that looks complete.
@@ -153,39 +193,10 @@ pub fn synthesize(
         .collect::<Result<_, SynthError>>()?;
     let mut files = Vec::new();
     let region = Region::centred(cfg.region_cm[0], cfg.region_cm[1]);
-    let dict = Dictionary::from_name(&cfg.markers.dictionary)?;
 
     // Material, rasterised over the region and the markers' surroundings.
     progress.stage("material", 1);
-    // A whole number of texels, so the ground-truth crop shares the render raster exactly.
-    let margin = ((cfg.markers.size_cm + cfg.markers.paper_margin_cm + 2.0) * cfg.map_px_per_cm)
-        .ceil()
-        / cfg.map_px_per_cm;
-    let grid = PlaneGrid::new(region.expanded(margin), cfg.map_px_per_cm)?;
-    let material = match &cfg.material {
-        MaterialSource::Procedural(name) => MaterialMaps::procedural(
-            name,
-            grid,
-            cfg.feature_cm,
-            cfg.grain_angle_deg.to_radians(),
-            cfg.seed,
-        )?,
-        MaterialSource::Maps(path) => MaterialMaps::from_folder(path, grid, region)?,
-    };
-    let patterns = cfg
-        .markers
-        .ids
-        .iter()
-        .map(|&id| marker_pattern(dict, id).map(|p| (id, p.cells, p.white)))
-        .collect::<Result<Vec<_>, _>>()?;
-    let scene = Scene::new(
-        material,
-        region,
-        patterns,
-        cfg.markers.size_cm,
-        cfg.markers.paper_margin_cm,
-        cfg.seed,
-    );
+    let scene = build_scene(cfg, region, cfg.map_px_per_cm)?;
     progress.finish();
 
     // Ground-truth maps.

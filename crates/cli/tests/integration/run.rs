@@ -218,6 +218,7 @@ fn report_loads_in_chromium_with_every_image() {
     for name in [
         "diffuse-only",
         "fewer-clusters",
+        "cluster-maps",
         "strong-prior",
         "cluster-lobes",
         "default",
