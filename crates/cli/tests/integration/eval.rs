@@ -19,9 +19,14 @@ fn cards_blue() -> Option<PathBuf> {
     Some(p)
 }
 
-/// `svbrdf import` of the real photos into a fresh folder.
+/// `svbrdf import` of a MaterialGAN-layout folder into a fresh folder.
 fn import(data: &Path) -> PathBuf {
-    let cap = temp_dir().join("cards");
+    import_as(data, "cards")
+}
+
+/// [`import`] into the temporary folder `name`.
+fn import_as(data: &Path, name: &str) -> PathBuf {
+    let cap = temp_dir().join(name);
     let o = svbrdf(&[
         "import",
         "--materialgan",
@@ -184,15 +189,7 @@ fn simulated_materialgan_set_imports_and_the_full_fit_beats_diffuse_only() {
     assert_eq!(cams.lines().count(), 7);
     let truth = json(set.join("ground_truth/materialgan.json"));
     assert_eq!(truth["format"], "svbrdf-synth-materialgan");
-    let cap = temp_dir().join("mg-cap");
-    let o = svbrdf(&[
-        "import",
-        "--materialgan",
-        set.to_str().unwrap(),
-        "--out",
-        cap.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let cap = import_as(&set, "mg-cap");
     let out = temp_dir().join("mg-eval");
     let o = svbrdf(&[
         "eval",
