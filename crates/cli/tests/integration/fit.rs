@@ -39,7 +39,7 @@ fn fit_writes_complete_self_describing_maps() {
     // Lambertian one far worse on this glossy material, and the choice printed.
     let sel = &m["summary"]["selection"];
     let cands = sel["candidates"].as_array().unwrap();
-    assert_eq!(cands.len(), 6, "{sel}");
+    assert_eq!(cands.len(), 7, "{sel}");
     let err = |name: &str| {
         cands.iter().find(|c| c["name"] == name).unwrap()["held_out_srgb_rmse"]
             .as_f64()
