@@ -135,22 +135,7 @@ pub fn run(a: &SynthArgs) -> Result<()> {
         let s = svbrdf_synth::synthesize_materialgan(&cfg, &spec, &a.out, a.overwrite, &progress)
             .with_context(|| format!("synthesizing into {}", a.out.display()))?;
         print_timings(&progress.timings());
-        println!("wrote {}", s.out.display());
-        for f in &s.files {
-            println!("  {f}");
-        }
-        println!(
-            "{} photos of a {} cm patch at {} px ({} material, {} model); {:.2}% of the pixels have a clipped channel",
-            spec.photos,
-            spec.width_cm,
-            spec.size_px,
-            match &cfg.material {
-                MaterialSource::Procedural(m) => m.clone(),
-                MaterialSource::Maps(p) => p.display().to_string(),
-            },
-            format!("{:?}", cfg.brdf).to_lowercase(),
-            100.0 * s.clipped_share
-        );
+        print_materialgan_summary(&s, &spec, &cfg);
         return Ok(());
     }
     print_summary(&run_synth(&cfg, &a.out, a.overwrite)?);
@@ -287,6 +272,30 @@ pub fn run_demo(a: &DemoArgs) -> Result<()> {
     println!();
     run_cmd::print_run_summary(&outcome)?;
     Ok(())
+}
+
+/// What `synth --materialgan` wrote, and the share of clipped pixels.
+fn print_materialgan_summary(
+    s: &svbrdf_synth::MaterialGanSummary,
+    spec: &svbrdf_synth::MaterialGanSpec,
+    cfg: &SynthConfig,
+) {
+    println!("wrote {}", s.out.display());
+    for f in &s.files {
+        println!("  {f}");
+    }
+    println!(
+        "{} photos of a {} cm patch at {} px ({} material, {} model); {:.2}% of the pixels have a clipped channel",
+        spec.photos,
+        spec.width_cm,
+        spec.size_px,
+        match &cfg.material {
+            MaterialSource::Procedural(m) => m.clone(),
+            MaterialSource::Maps(p) => p.display().to_string(),
+        },
+        format!("{:?}", cfg.brdf).to_lowercase(),
+        100.0 * s.clipped_share
+    );
 }
 
 fn print_summary(s: &svbrdf_synth::SynthSummary) {

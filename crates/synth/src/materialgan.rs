@@ -24,16 +24,15 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use svbrdf_core::brdf::{LightView, Prepared};
 use svbrdf_core::fsutil::{write_json, StagingDir};
-use svbrdf_core::geometry::Vec3;
+use svbrdf_core::geometry::{Vec2, Vec3};
 use svbrdf_core::image::ImageF32;
 use svbrdf_core::maps::{write_png_u8, Encoding};
 use svbrdf_core::plane::{PlaneGrid, Region};
 use svbrdf_core::CoreError;
 
 use crate::config::SynthConfig;
-use crate::render::expose;
+use crate::render::{expose, shade_point, Lighting};
 use crate::scene::Scene;
 use crate::{Progress, SynthError};
 
@@ -125,17 +124,6 @@ impl MaterialGanSpec {
     }
 }
 
-/// One photo's camera and flash, cm.
-#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
-pub struct MaterialGanPhoto {
-    /// File name (`00.png`, ...).
-    pub file: &'static str,
-    /// Camera centre.
-    pub camera_cm: [f64; 3],
-    /// Flash position.
-    pub light_cm: [f64; 3],
-}
-
 /// `OUT/ground_truth/materialgan.json`.
 #[derive(Debug, Clone, Serialize)]
 struct MaterialGanTruth<'a> {
@@ -183,7 +171,7 @@ fn cameras(spec: &MaterialGanSpec, seed: u64) -> Vec<Vec3> {
 }
 
 /// Linear radiance of the patch seen from `camera` under the flash at `light`, on the
-/// photo grid, `ss x ss` samples per pixel, plus the room light of `cfg`.
+/// photo grid, `ss x ss` samples per pixel (box filter), plus the room light of `cfg`.
 fn render_photo(
     cfg: &SynthConfig,
     scene: &Scene,
@@ -192,10 +180,15 @@ fn render_photo(
     camera: Vec3,
     light: Vec3,
 ) -> ImageF32 {
-    let mut img = ImageF32::new(grid.width, grid.height, 3);
-    let model = cfg.brdf.model();
+    let lighting = Lighting {
+        intensity: cfg.light.flash_intensity,
+        ambient: cfg.light.ambient,
+        model: cfg.brdf,
+    };
     let step = 1.0 / (grid.px_per_cm * f64::from(ss));
+    let offset = |i: u32| (f64::from(i) + 0.5 - 0.5 * f64::from(ss)) * step;
     let n = f64::from(ss * ss);
+    let mut img = ImageF32::new(grid.width, grid.height, 3);
     img.data
         .par_chunks_mut(grid.width * 3)
         .enumerate()
@@ -205,19 +198,10 @@ fn render_photo(
                 let mut acc = [0.0f64; 3];
                 for sy in 0..ss {
                     for sx in 0..ss {
-                        let dx = (f64::from(sx) + 0.5 - 0.5 * f64::from(ss)) * step;
-                        let dy = (f64::from(sy) + 0.5 - 0.5 * f64::from(ss)) * step;
-                        let p = svbrdf_core::geometry::Vec2::new(centre.x + dx, centre.y - dy);
-                        let (params, normal) = scene.surface(p);
-                        let surf = Vec3::new(p.x, p.y, 0.0);
-                        let obs = LightView::from_points(surf, light, camera);
-                        let l = model.radiance(
-                            &Prepared::for_evaluation(params, normal),
-                            &obs,
-                            cfg.light.flash_intensity,
-                        );
+                        let p = Vec2::new(centre.x + offset(sx), centre.y - offset(sy));
+                        let l = shade_point(scene, p, Some(light), camera, lighting);
                         for k in 0..3 {
-                            acc[k] += l[k] + cfg.light.ambient * params.rho_d[k];
+                            acc[k] += l[k];
                         }
                     }
                 }

@@ -51,12 +51,26 @@ pub fn shade(
     let Some(p) = svbrdf_core::geometry::ray_plane(e.camera.pose.centre, dir) else {
         return [0.0; 3];
     };
+    let light = e.light.filter(|_| row >= e.first_lit_row);
+    shade_point(scene, p, light, e.camera.pose.centre, lighting)
+}
+
+/// Linear radiance of plane point `p` towards `camera`: the room light, plus the flash
+/// at `light` if it is lit.
+#[inline]
+pub fn shade_point(
+    scene: &Scene,
+    p: Vec2,
+    light: Option<Vec3>,
+    camera: Vec3,
+    lighting: Lighting,
+) -> [f64; 3] {
     let (params, n) = scene.surface(p);
     let surf = Vec3::new(p.x, p.y, 0.0);
     let mut out = params.rho_d.map(|d| lighting.ambient * d);
-    if let Some(light) = e.light.filter(|_| row >= e.first_lit_row) {
+    if let Some(light) = light {
         let prep = Prepared::for_evaluation(params, n);
-        let obs = LightView::from_points(surf, light, e.camera.pose.centre);
+        let obs = LightView::from_points(surf, light, camera);
         let l = lighting
             .model
             .model()
