@@ -264,6 +264,7 @@ pub fn fit_accuracy(
         px_per_cm: None,
         light_intensity: None,
         no_refine: true,
+        no_room_light: false,
         seed: None,
         select_folds: Some(0),
     })?;
@@ -271,14 +272,14 @@ pub fn fit_accuracy(
     let t = Instant::now();
     let mut b = svbrdf_fit::ObservationBuilder::new(&capture, grid, &cfg)?;
     crate::fit_cmd::CvFrames.decode(&capture, capture_dir, &mut |k, img| b.add_frame(k, &img))?;
-    let obs = b.finish();
+    let mut obs = b.finish();
     let t_obs = t.elapsed().as_secs_f64();
     let mut out = Vec::new();
     for refine in [false, true] {
         cfg.refine = refine;
         let t = Instant::now();
         let (maps, summary) =
-            svbrdf_fit::fit(&obs, &capture, &cfg, &svbrdf_core::progress::NoProgress)?;
+            svbrdf_fit::fit(&mut obs, &capture, &cfg, &svbrdf_core::progress::NoProgress)?;
         let t_fit = t.elapsed().as_secs_f64();
         let acc = svbrdf_fit::evaluate::evaluate(
             &grid,

@@ -306,6 +306,7 @@ pub fn run(a: &BenchArgs) -> Result<()> {
                 px_per_cm: Some(a.eval_px_per_cm),
                 light_intensity: None,
                 no_refine: false,
+                no_room_light: false,
                 seed: None,
                 select_folds: None,
             },

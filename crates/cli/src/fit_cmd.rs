@@ -46,6 +46,10 @@ pub struct FitOptions {
     /// Skip the per-pixel refinement (maps constant within each cluster, as the paper).
     #[arg(long)]
     pub no_refine: bool,
+    /// Read every observation as lit by the flash alone (the paper's model) instead of
+    /// estimating the room's light and fitting it with every observation.
+    #[arg(long)]
+    pub no_room_light: bool,
     /// Seed of the clustering's random choices.
     #[arg(long)]
     pub seed: Option<u64>,
@@ -71,6 +75,9 @@ pub fn fit_config(a: &FitOptions) -> Result<FitConfig> {
     }
     if a.no_refine {
         c.refine = false;
+    }
+    if a.no_room_light {
+        c.room_light = svbrdf_fit::RoomLightMode::Off;
     }
     if let Some(i) = &a.light_intensity {
         c.light_intensity = Some(match i.as_slice() {
@@ -179,6 +186,12 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
         s.light_intensity_source,
         s.model
     );
+    if let Some(r) = s.room_light.filter(|r| r.applied) {
+        say!(
+            "room light: {:.0}% of the flash's diffuse light on the surface (fitted with every observation and kept out of the maps; --no-room-light to read all light as the flash's)",
+            100.0 * r.share_of_flash
+        );
+    }
     let worst = s.frames.iter().map(|f| f.relative).fold(0.0f64, f64::max);
     say!(
         "re-rendering error (linear RMS): clusters only {:.4}, final {:.4}; worst frame {:.1}% of its mean",

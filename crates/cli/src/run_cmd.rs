@@ -184,6 +184,10 @@ pub struct RunArgs {
     /// Skip the per-pixel refinement (maps constant within each cluster, as the paper).
     #[arg(long)]
     pub no_refine: bool,
+    /// Read every observation as lit by the flash alone instead of estimating the
+    /// room's light (see `fit --no-room-light`).
+    #[arg(long)]
+    pub no_room_light: bool,
     /// Take every flash frame as recorded at the same exposure (exposure locked)
     /// instead of estimating one gain per frame.
     #[arg(long)]
@@ -230,6 +234,7 @@ impl RunArgs {
             model: "ward".into(),
             fit_config: None,
             no_refine: false,
+            no_room_light: false,
             fixed_exposure: false,
             seed: None,
             select_folds: None,
@@ -339,6 +344,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
             px_per_cm: None,
             light_intensity: None,
             no_refine: a.no_refine,
+            no_room_light: a.no_room_light,
             seed: a.seed,
             select_folds: a.select_folds,
         },

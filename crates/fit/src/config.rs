@@ -5,6 +5,19 @@ use svbrdf_core::brdf::ModelKind;
 
 use crate::FitError;
 
+/// When the fit applies the room light ([`FitConfig::room_light`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum RoomLightMode {
+    /// Estimated; applied unless at the top of the range searched.
+    #[default]
+    Auto,
+    /// Estimated and applied whatever it is.
+    On,
+    /// Not estimated (the paper's model).
+    Off,
+}
+
 /// Relative drop of a part's solver cost for which a turned tangent is kept
 /// ([`FitConfig::tangent_rotation_depth`]): below it the turn is noise (an isotropic
 /// lobe's cost does not depend on it).
@@ -36,6 +49,13 @@ pub struct FitConfig {
     /// whose highlight clipped look matte: on the simulator's brushed metal, censoring
     /// lowers the held-out relighting error from about 120% to 40%.
     pub censor_clipped: bool,
+    /// Whether to estimate the room light (one constant irradiance over the capture, see
+    /// [`crate::room`]) and fit every observation as flash plus room light, so that the
+    /// maps hold the material alone: `auto` applies an estimate unless it reached the top
+    /// of the range searched (as bright as the flash: the data could not tell it from
+    /// the material), `on` applies it always, `off` reads every observation as lit by the
+    /// flash alone (the paper's model).
+    pub room_light: RoomLightMode,
     /// Observations within this many frame pixels of the image border are dropped.
     pub border_px: f64,
     /// Sample frames bicubically (Catmull-Rom) instead of bilinearly, except next to
@@ -192,6 +212,7 @@ impl Default for FitConfig {
             normalised_albedo: 0.8,
             saturation: 0.9,
             censor_clipped: true,
+            room_light: RoomLightMode::Auto,
             border_px: 2.0,
             bicubic: true,
             min_observations: 3,

@@ -35,6 +35,7 @@ impl PixelBatch {
         let step = step.max(1);
         let n = r.len().div_ceil(step);
         self.geom.begin(n);
+        self.geom.ambient = obs.ambient as f32;
         let padded = self.geom.padded_len();
         for a in self.rgb.iter_mut().chain(self.censor.iter_mut()) {
             a.clear();
@@ -163,6 +164,7 @@ impl SampleBatch {
     pub fn new(samples: &[Sample]) -> Self {
         let mut b = Self::default();
         b.geom.begin(samples.len());
+        b.geom.ambient = samples.first().map_or(0.0, |s| s.lv.ambient as f32);
         let padded = b.geom.padded_len();
         for a in b.rgb.iter_mut().chain(b.censor.iter_mut()) {
             a.resize(padded, 0.0);
@@ -194,6 +196,7 @@ impl SampleBatch {
     pub fn gather(&mut self, obs: &Observations, px: usize) {
         let r = obs.range(px);
         self.geom.begin(r.len());
+        self.geom.ambient = obs.ambient as f32;
         let padded = self.geom.padded_len();
         for a in self.rgb.iter_mut().chain(self.censor.iter_mut()) {
             a.clear();

@@ -18,7 +18,7 @@ use svbrdf_core::plane::PlaneGrid;
 use svbrdf_core::progress::Progress;
 use svbrdf_core::CoreError;
 
-use crate::render::relight;
+use crate::render::relight_in_room;
 use crate::{FitConfig, FitError, FrameSource};
 
 /// File names inside an evaluation folder.
@@ -441,6 +441,12 @@ pub fn evaluate_holdout(
     let fit_seconds = t.elapsed().as_secs_f64();
     let maps = crate::output::read_maps(&fitted.out)?;
     let intensity = maps.manifest.summary.light_intensity;
+    let ambient = maps
+        .manifest
+        .summary
+        .room_light
+        .filter(|r| r.applied)
+        .map_or(0.0, |r| r.ambient);
     let model = cfg.fit.model.model();
     let eval_dir = root.join(EVAL_DIR);
     std::fs::create_dir_all(&eval_dir).map_err(|e| CoreError::io(&eval_dir, e))?;
@@ -450,14 +456,16 @@ pub fn evaluate_holdout(
         let f = &held.frames[k];
         let mapping = PreparedMapping::new(f)?;
         let (photo, mask) = rectify(&mapping, &img, &maps.grid);
-        // The held-out frame's own exposure scales what it shows.
-        let ours = relight(
+        // The held-out frame's own exposure scales what it shows, and it was taken in
+        // the same room: the fit's room light is part of the prediction.
+        let ours = relight_in_room(
             &maps.grid,
             &maps.params,
             model,
             intensity.map(|i| i * f.gain()),
             Vec3::from(f.light_position),
             Vec3::from(f.camera_position),
+            ambient,
         );
         let (rl_raw, mean) = rmse(&photo, &ours, &mask);
         let mut ours = ours;

@@ -27,6 +27,7 @@ pub mod output;
 mod refine;
 pub mod render;
 mod resources;
+pub mod room;
 pub mod select;
 pub mod solver;
 mod stages;
@@ -40,7 +41,7 @@ use svbrdf_core::capture::RegisteredCapture;
 use svbrdf_core::progress::Progress;
 use svbrdf_core::CoreError;
 
-pub use config::FitConfig;
+pub use config::{FitConfig, RoomLightMode};
 pub use intensity::light_intensity;
 pub use observations::{ObservationBuilder, Observations};
 use refine::refine;
@@ -119,10 +120,10 @@ pub fn run(
         progress.advance(1);
         Ok(())
     })?;
-    let obs = builder.finish();
+    let mut obs = builder.finish();
     progress.finish();
     let t_obs = t.elapsed().as_secs_f64();
-    let (maps, mut summary) = fit(&obs, &capture, cfg, progress)?;
+    let (maps, mut summary) = fit(&mut obs, &capture, cfg, progress)?;
     summary
         .timings
         .insert(0, ("observations: sampling frames".into(), sampling));
@@ -185,20 +186,58 @@ const ENERGY_MARGIN: f64 = 0.95;
 /// refinement. With `select_folds` > 0 the settings are first chosen by how well they
 /// predict held-out frames ([`select`]), and the record lands in the summary.
 pub fn fit(
-    obs: &Observations,
+    obs: &mut Observations,
     capture: &RegisteredCapture,
     cfg: &FitConfig,
     progress: &dyn Progress,
 ) -> Result<(FittedMaps, FitSummary), FitError> {
     cfg.validate()?;
-    let Some((chosen, record)) = select::select(obs, capture, cfg, progress)? else {
-        return fit_once(obs, capture, cfg, progress);
+    let t = Instant::now();
+    let mut room = match cfg.room_light {
+        RoomLightMode::Off => None,
+        RoomLightMode::Auto | RoomLightMode::On => stages::room_light(obs, capture, cfg)?,
     };
-    let (maps, mut summary) = fit_once(obs, capture, &chosen, progress)?;
-    summary
-        .timings
-        .insert(0, ("choosing settings".to_string(), record.seconds));
-    summary.selection = Some(record);
+    // At the top of the range searched the estimate is more likely material the flash
+    // model misses than room light (simulated photo sets of glossy facets: three times
+    // the true room light); `auto` then fits without it.
+    let at_bound = room.is_some_and(|r| r.share_of_flash >= room::MAX_SHARE);
+    if let (Some(r), true, RoomLightMode::Auto) = (room.as_mut(), at_bound, cfg.room_light) {
+        r.applied = false;
+    }
+    let wanted = cfg.room_light != RoomLightMode::Off;
+    obs.ambient = room.filter(|r| r.applied).map_or(0.0, |r| r.ambient);
+    let t_room = t.elapsed().as_secs_f64();
+    let obs = &*obs;
+    let (maps, mut summary) = match select::select(obs, capture, cfg, progress)? {
+        None => fit_once(obs, capture, cfg, progress)?,
+        Some((chosen, record)) => {
+            let (maps, mut summary) = fit_once(obs, capture, &chosen, progress)?;
+            summary
+                .timings
+                .insert(0, ("choosing settings".to_string(), record.seconds));
+            summary.selection = Some(record);
+            (maps, summary)
+        }
+    };
+    if wanted {
+        summary
+            .timings
+            .insert(0, ("room light".to_string(), t_room));
+    }
+    if let Some(r) = room.filter(|_| at_bound) {
+        summary.warnings.push(if r.applied {
+            format!(
+                "the room light came out at the top of the range searched ({:.0}% of the flash's light on the surface) and was applied (room_light on): the maps' albedos are doubtful",
+                100.0 * r.share_of_flash
+            )
+        } else {
+            format!(
+                "the room light could not be told from the material (its estimate reached the top of the range searched, {:.0}% of the flash's light on the surface): fitted as lit by the flash alone, so any room light is in the albedos",
+                100.0 * r.share_of_flash
+            )
+        });
+    }
+    summary.room_light = room;
     Ok((maps, summary))
 }
 
@@ -226,6 +265,15 @@ mod tests {
     fn two_materials_rendered(
         drop_clipped: bool,
         intensity: f64,
+    ) -> (Observations, RegisteredCapture, [BrdfParams; 2]) {
+        two_materials_in_room(drop_clipped, intensity, 0.0)
+    }
+
+    /// [`two_materials_rendered`] with room light `ambient` in every frame.
+    fn two_materials_in_room(
+        drop_clipped: bool,
+        intensity: f64,
+        ambient: f64,
     ) -> (Observations, RegisteredCapture, [BrdfParams; 2]) {
         let truth = [
             BrdfParams {
@@ -256,12 +304,13 @@ mod tests {
                 gain: 1.0,
             });
         }
-        let obs = observations::rendered(
+        let obs = observations::rendered_in_room(
             grid,
             frames,
             |px| truth[usize::from(grid.pixel_centre(px % grid.width, px / grid.width).x > 0.0)],
             intensity,
             drop_clipped,
+            ambient,
         );
         let mut cap = RegisteredCapture::new("test", region, 10.0);
         cap.light_intensity = Some([intensity; 3]);
@@ -321,12 +370,12 @@ mod tests {
         // The shiny material's peaks clip (as observations dropped: nothing near the
         // mirror direction is left clipped).
         let (obs, cap, _) = two_materials_rendered(true, 160.0);
-        let (_, s) = fit(&obs, &cap, &cfg, &NoProgress).unwrap();
+        let (_, s) = fit(&mut obs.clone(), &cap, &cfg, &NoProgress).unwrap();
         assert!(!said(&s), "{:?}", s.warnings);
         // Kept as lower bounds: most of the shiny half's observations near its mirror
         // direction are clipped (none of the matte half's).
         let (obs, cap, _) = two_materials_rendered(false, 160.0);
-        let (_, s) = fit(&obs, &cap, &cfg, &NoProgress).unwrap();
+        let (_, s) = fit(&mut obs.clone(), &cap, &cfg, &NoProgress).unwrap();
         assert!(
             s.clipped_near_mirror
                 .is_some_and(|c| c > CLIPPED_PEAK_WARNING),
@@ -337,12 +386,12 @@ mod tests {
 
     #[test]
     fn recovers_two_materials_and_respects_the_minimum_cluster_size() {
-        let (obs, cap, truth) = two_materials();
+        let (mut obs, cap, truth) = two_materials();
         let cfg = FitConfig {
             refine: false,
             ..FitConfig::default()
         };
-        let (maps, summary) = fit(&obs, &cap, &cfg, &NoProgress).unwrap();
+        let (maps, summary) = fit(&mut obs, &cap, &cfg, &NoProgress).unwrap();
         // Average colour varies inside each material (falloff, highlights), so the
         // elbow may pick more than two clusters, but no cluster mixes the materials.
         assert!(summary.initial_clusters >= 2, "{:?}", summary.kmeans_sse);
@@ -373,6 +422,94 @@ mod tests {
             assert!(p.normal().z > 0.999);
         }
         assert!(maps.params.iter().all(BrdfParams::is_physical));
+    }
+
+    /// Room light at about 14% of the flash's diffuse light: found, fitted with every
+    /// observation and kept out of the maps; the paper's model (`room_light` off) reads
+    /// it as albedo. Without room light none is found.
+    #[test]
+    fn room_light_is_found_and_kept_out_of_the_albedo() {
+        let ambient = 0.0012;
+        let cfg = FitConfig {
+            refine: false,
+            select_folds: 0,
+            room_light: RoomLightMode::On,
+            ..FitConfig::default()
+        };
+        let (mut obs, cap, truth) = two_materials_in_room(true, 100.0, ambient);
+        let (maps, summary) = fit(&mut obs, &cap, &cfg, &NoProgress).unwrap();
+        let room = summary.room_light.expect("an estimate");
+        assert!(
+            (room.ambient - ambient).abs() < 0.15 * ambient,
+            "{room:?} against {ambient}"
+        );
+        assert!(
+            room.share_of_flash > 0.08 && room.share_of_flash < 0.2,
+            "{room:?}"
+        );
+        assert!(room.residual_drop > 0.0, "{room:?}");
+        let off = FitConfig {
+            room_light: RoomLightMode::Off,
+            ..cfg.clone()
+        };
+        let (mut obs_off, ..) = two_materials_in_room(true, 100.0, ambient);
+        let (paper, paper_summary) = fit(&mut obs_off, &cap, &off, &NoProgress).unwrap();
+        assert!(paper_summary.room_light.is_none());
+        let px = 5 * 40 + 5;
+        for c in 0..3 {
+            let (t, ours, theirs) = (
+                truth[0].rho_d[c],
+                maps.params[px].rho_d[c],
+                paper.params[px].rho_d[c],
+            );
+            assert!(
+                (ours - t).abs() < 0.03 * t + 0.005,
+                "channel {c}: {ours} vs {t}"
+            );
+            assert!(
+                theirs > 1.05 * t,
+                "channel {c}: the paper's model {theirs} vs {t}"
+            );
+        }
+        let (mut dark, ..) = two_materials_in_room(true, 100.0, 0.0);
+        let (_, s) = fit(&mut dark, &cap, &cfg, &NoProgress).unwrap();
+        let none = s.room_light.expect("an estimate");
+        assert!(none.share_of_flash <= 0.01, "{none:?}");
+    }
+
+    /// Room light brighter than the flash's light on the surface puts the estimate at
+    /// the top of the range searched: `auto` does not apply it and warns, `on` does.
+    #[test]
+    fn a_room_light_at_the_top_of_the_range_is_not_applied() {
+        let run = |mode: RoomLightMode| {
+            let (mut obs, cap, _) = two_materials_in_room(true, 100.0, 0.03);
+            let cfg = FitConfig {
+                refine: false,
+                select_folds: 0,
+                room_light: mode,
+                ..FitConfig::default()
+            };
+            let (_, s) = fit(&mut obs, &cap, &cfg, &NoProgress).unwrap();
+            (s, obs.ambient)
+        };
+        let (auto, ambient) = run(RoomLightMode::Auto);
+        let room = auto.room_light.expect("an estimate");
+        assert!(
+            room.share_of_flash >= room::MAX_SHARE && !room.applied,
+            "{room:?}"
+        );
+        assert_eq!(ambient, 0.0);
+        assert!(
+            auto.warnings
+                .iter()
+                .any(|w| w.contains("could not be told from the material")),
+            "{:?}",
+            auto.warnings
+        );
+        let (on, ambient) = run(RoomLightMode::On);
+        assert!(on.room_light.is_some_and(|r| r.applied));
+        assert!(ambient > 0.0);
+        assert!(on.warnings.iter().any(|w| w.contains("was applied")));
     }
 
     #[test]
@@ -416,7 +553,7 @@ mod tests {
             obs.rgb[o] = obs.rgb[o].map(|v| (f64::from(v) * 0.8) as u16);
         }
         let cfg = FitConfig::default();
-        let (maps, _) = fit(&obs, &cap, &cfg, &NoProgress).unwrap();
+        let (maps, _) = fit(&mut obs.clone(), &cap, &cfg, &NoProgress).unwrap();
         let ratio = maps.params[px].rho_d[0] / maps.params[px + 1].rho_d[0];
         assert!((ratio - 0.8).abs() < 0.05, "ratio {ratio}");
     }
@@ -449,12 +586,12 @@ mod tests {
             refine_specular: false,
             ..FitConfig::default()
         };
-        let (plain, plain_summary) = fit(&obs, &cap, &base, &NoProgress).unwrap();
+        let (plain, plain_summary) = fit(&mut obs.clone(), &cap, &base, &NoProgress).unwrap();
         let cfg = FitConfig {
             refine_specular: true,
             ..base
         };
-        let (own, summary) = fit(&obs, &cap, &cfg, &NoProgress).unwrap();
+        let (own, summary) = fit(&mut obs.clone(), &cap, &cfg, &NoProgress).unwrap();
         assert_eq!(plain_summary.pixel_lobes, 0);
         assert!(summary.pixel_lobes > 0);
         let seen: Vec<usize> = patch
@@ -503,7 +640,8 @@ mod tests {
             start.push(f.len());
         }
         (obs.start, obs.frame, obs.rgb, obs.key) = (start, f, r, k);
-        let (maps, summary) = fit(&obs, &cap, &FitConfig::default(), &NoProgress).unwrap();
+        let (maps, summary) =
+            fit(&mut obs.clone(), &cap, &FitConfig::default(), &NoProgress).unwrap();
         assert_eq!(summary.covered_pixels, 40 * 40 - 9);
         assert_eq!(maps.coverage[11 * 40 + 11], 0);
         assert_eq!(maps.cluster[11 * 40 + 11], maps.cluster[11 * 40 + 9]);

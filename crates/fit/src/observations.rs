@@ -74,6 +74,9 @@ pub struct Observations {
     pub clipped: u64,
     /// Linear value at and above which a channel counts as clipped.
     pub saturation: f64,
+    /// Room light recorded with every observation ([`LightView::ambient`], cm^-2): 0
+    /// until [`crate::room::estimate`] sets it; part of every [`Self::light_view`].
+    pub ambient: f64,
 }
 
 impl Observations {
@@ -158,7 +161,7 @@ impl Observations {
     #[inline]
     pub fn light_view(&self, px: usize, o: usize) -> LightView {
         let f = &self.frames[usize::from(self.frame[o])];
-        LightView::from_points(self.surface(px), f.light, f.camera)
+        LightView::from_points(self.surface(px), f.light, f.camera).with_ambient(self.ambient)
     }
 
     /// The observations of the frames `keep` selects (indexed like [`Self::frames`]),
@@ -184,6 +187,7 @@ impl Observations {
             key: Vec::new(),
             clipped: 0,
             saturation: self.saturation,
+            ambient: self.ambient,
         };
         out.start.push(0);
         for r in 0..grid.height {
@@ -488,6 +492,7 @@ impl ObservationBuilder {
             key,
             clipped: self.saturated.iter().sum(),
             saturation: f64::from(self.saturation),
+            ambient: 0.0,
         }
     }
 }
@@ -567,6 +572,19 @@ pub(crate) fn rendered(
     intensity: f64,
     drop_clipped: bool,
 ) -> Observations {
+    rendered_in_room(grid, frames, params, intensity, drop_clipped, 0.0)
+}
+
+/// [`rendered`] with room light `ambient` ([`LightView::ambient`]) in every frame.
+#[cfg(test)]
+pub(crate) fn rendered_in_room(
+    grid: PlaneGrid,
+    frames: Vec<FrameGeometry>,
+    params: impl Fn(usize) -> svbrdf_core::brdf::BrdfParams,
+    intensity: f64,
+    drop_clipped: bool,
+    ambient: f64,
+) -> Observations {
     use svbrdf_core::brdf::{BrdfModel, Prepared, Ward};
     let mut start = vec![0];
     let (mut frame, mut rgb, mut key, mut clipped) = (Vec::new(), Vec::new(), Vec::new(), 0);
@@ -575,7 +593,7 @@ pub(crate) fn rendered(
         let p = Prepared::new(params(px));
         for (k, f) in frames.iter().enumerate() {
             let lv = LightView::from_points(Vec3::new(q.x, q.y, 0.0), f.light, f.camera);
-            let v = Ward.radiance(&p, &lv, intensity);
+            let v = Ward.radiance(&p, &lv.with_ambient(ambient), intensity);
             let any = v.iter().any(|c| *c >= 0.9);
             if any && drop_clipped {
                 continue;
@@ -602,6 +620,7 @@ pub(crate) fn rendered(
         key,
         clipped,
         saturation: 0.9,
+        ambient: 0.0,
     }
 }
 
@@ -670,6 +689,7 @@ mod tests {
             key,
             clipped: (w * h) as u64,
             saturation: 0.9,
+            ambient: 0.0,
         }
     }
 
@@ -748,6 +768,7 @@ mod tests {
             light: l.normalize(),
             view: v.normalize(),
             light_dist2: r * r,
+            ambient: 0.0,
         };
         let a = bin_key(&lv(Vec3::new(0.1, 0.0, 1.0), Vec3::z(), 12.2), 5.0, 1.0);
         let b = bin_key(&lv(Vec3::new(0.1, 0.0, 1.0), Vec3::z(), 12.7), 5.0, 1.0);

@@ -281,6 +281,20 @@ pub fn relight(
     light: Vec3,
     camera: Vec3,
 ) -> ImageF32 {
+    relight_in_room(grid, params, model, intensity, light, camera, 0.0)
+}
+
+/// [`relight`] with the room light `ambient` ([`LightView::ambient`]) added: what a
+/// photo taken in the capture's room records (held-out frames of the capture).
+pub fn relight_in_room(
+    grid: &PlaneGrid,
+    params: &[BrdfParams],
+    model: &dyn BrdfModel,
+    intensity: [f64; 3],
+    light: Vec3,
+    camera: Vec3,
+    ambient: f64,
+) -> ImageF32 {
     let mut img = ImageF32::new(grid.width, grid.height, 3);
     img.data
         .par_chunks_mut(grid.width * 3)
@@ -288,7 +302,8 @@ pub fn relight(
         .for_each(|(r, line)| {
             for c in 0..grid.width {
                 let q = grid.pixel_centre(c, r);
-                let lv = LightView::from_points(Vec3::new(q.x, q.y, 0.0), light, camera);
+                let lv = LightView::from_points(Vec3::new(q.x, q.y, 0.0), light, camera)
+                    .with_ambient(ambient);
                 let v = model.radiance(&Prepared::new(params[r * grid.width + c]), &lv, 1.0);
                 for k in 0..3 {
                     line[c * 3 + k] = (v[k] * intensity[k]) as f32;

@@ -78,30 +78,14 @@ pub(crate) fn fit_tree(
     let (mut intensity, source) = light_intensity(obs, capture, cfg)?;
     let model = cfg.model.model();
     let npx = obs.pixels();
-    let average = obs.mean_colors();
-    let covered: Vec<bool> = (0..npx)
-        .map(|p| obs.count(p) >= cfg.min_observations)
-        .collect();
-    let covered_px: Vec<u32> = (0..npx as u32).filter(|&p| covered[p as usize]).collect();
-    if covered_px.len() < cfg.min_cluster_px {
-        return Err(FitError::NoData(format!(
-            "only {} of {} output pixels have at least {} observations (need {}): \
-             the frames do not cover the region",
-            covered_px.len(),
-            npx,
-            cfg.min_observations,
-            cfg.min_cluster_px
-        )));
-    }
-
     progress.stage("initial clusters", 1);
-    let colors: Vec<[f64; 3]> = covered_px.iter().map(|&p| average[p as usize]).collect();
-    let init =
-        cluster::initial_clusters(&colors, cfg.k_min, cfg.k_max, cfg.kmeans_sample, cfg.seed);
-    let mut members: Vec<Vec<u32>> = vec![Vec::new(); init.k];
-    for (&p, &l) in covered_px.iter().zip(&init.labels) {
-        members[l as usize].push(p);
-    }
+    let Initial {
+        average,
+        covered,
+        covered_px,
+        init,
+        members,
+    } = initial_clusters(obs, cfg)?;
     if source == IntensitySource::Normalised {
         // The percentile rule reads a shiny dark material (brushed metal) as bright,
         // because highlight tails inflate its diffuse estimate; its specular albedo
@@ -184,6 +168,87 @@ pub(crate) fn fit_tree(
         unconverged,
         rmse_clusters,
         timings,
+    })
+}
+
+/// The room light of a capture ([`crate::room`]): the initial clusters, each fitted
+/// with an isotropic lobe and a flat normal under no room light, give the lobe shapes;
+/// the full model is used even for a diffuse-only fit, so that both read the room alike.
+pub(crate) fn room_light(
+    obs: &Observations,
+    capture: &RegisteredCapture,
+    cfg: &FitConfig,
+) -> Result<Option<crate::room::RoomLight>, FitError> {
+    let (intensity, _) = light_intensity(obs, capture, cfg)?;
+    let probe_cfg = FitConfig {
+        diffuse_only: false,
+        ..cfg.clone()
+    };
+    let model = cfg.model.model();
+    let probe = Context {
+        obs,
+        model,
+        intensity,
+        cfg: &probe_cfg,
+    };
+    let Initial { members, .. } = initial_clusters(obs, cfg)?;
+    let clusters: Vec<(Vec<u32>, BrdfParams)> = members
+        .into_par_iter()
+        .filter(|m| !m.is_empty())
+        .map(|m| {
+            let p = tree::initial_fit(&probe, &m, false);
+            (m, p)
+        })
+        .collect();
+    Ok(crate::room::estimate(obs, &clusters, model, intensity))
+}
+
+/// The paper's initial clusters (k-means on the pixels' mean colours, 3.2.1).
+pub(crate) struct Initial {
+    /// Mean colour per pixel.
+    pub(crate) average: Vec<[f64; 3]>,
+    /// Pixels with enough observations to fit.
+    pub(crate) covered: Vec<bool>,
+    /// Their indices.
+    pub(crate) covered_px: Vec<u32>,
+    /// The k-means result.
+    pub(crate) init: cluster::InitialClusters,
+    /// Pixels per initial cluster.
+    pub(crate) members: Vec<Vec<u32>>,
+}
+
+/// [`Initial`] clusters of the pixels observed at least `min_observations` times; an
+/// error when too few are.
+pub(crate) fn initial_clusters(obs: &Observations, cfg: &FitConfig) -> Result<Initial, FitError> {
+    let npx = obs.pixels();
+    let average = obs.mean_colors();
+    let covered: Vec<bool> = (0..npx)
+        .map(|p| obs.count(p) >= cfg.min_observations)
+        .collect();
+    let covered_px: Vec<u32> = (0..npx as u32).filter(|&p| covered[p as usize]).collect();
+    if covered_px.len() < cfg.min_cluster_px {
+        return Err(FitError::NoData(format!(
+            "only {} of {} output pixels have at least {} observations (need {}): \
+             the frames do not cover the region",
+            covered_px.len(),
+            npx,
+            cfg.min_observations,
+            cfg.min_cluster_px
+        )));
+    }
+    let colors: Vec<[f64; 3]> = covered_px.iter().map(|&p| average[p as usize]).collect();
+    let init =
+        cluster::initial_clusters(&colors, cfg.k_min, cfg.k_max, cfg.kmeans_sample, cfg.seed);
+    let mut members: Vec<Vec<u32>> = vec![Vec::new(); init.k];
+    for (&p, &l) in covered_px.iter().zip(&init.labels) {
+        members[l as usize].push(p);
+    }
+    Ok(Initial {
+        average,
+        covered,
+        covered_px,
+        init,
+        members,
     })
 }
 
@@ -437,6 +502,7 @@ pub(crate) fn finish(
         lobes_from_parent: leaves.iter().filter(|l| l.lobe_from_parent).count(),
         turned_grain: summary::turned_grain(&params, &covered),
         selection: None,
+        room_light: None,
     };
     Ok((
         FittedMaps {

@@ -157,6 +157,10 @@ pub struct FitSummary {
     /// How the settings were chosen on held-out frames (absent when not validated).
     #[serde(default)]
     pub selection: Option<select::Selection>,
+    /// The room light found and fitted with every observation (absent when
+    /// `room_light` is off or no pixel had enough unclipped observations).
+    #[serde(default)]
+    pub room_light: Option<crate::room::RoomLight>,
     /// Seconds per step.
     pub timings: Vec<(String, f64)>,
 }

@@ -138,6 +138,7 @@ pub fn binned_samples(ctx: &Context, pixels: &[u32]) -> Vec<Sample> {
                     light: a.l.try_normalize(1e-12)?,
                     view: a.v.try_normalize(1e-12)?,
                     light_dist2: a.r2 / a.n,
+                    ambient: obs.ambient,
                 },
                 rgb: a.rgb.map(|v| v / a.n),
                 weight: a.n,
@@ -211,7 +212,7 @@ pub fn initial_params(ctx: &Context, pixels: &[u32]) -> BrdfParams {
         let n = r.len() as f64;
         for o in r {
             let lv = obs.light_view(px, o);
-            let g = std::f64::consts::PI * lv.light_dist2 / lv.light.z.max(0.05);
+            let g = std::f64::consts::PI / (lv.light.z.max(0.05) / lv.light_dist2 + lv.ambient);
             let c = obs.color(o);
             for k in 0..3 {
                 let a = c[k] * g / ctx.intensity[k];
@@ -558,12 +559,13 @@ pub fn refit_lobe(ctx: &Context, leaf: &Leaf, params: &[BrdfParams]) -> Option<B
                 continue;
             }
             let c = obs.color(o);
-            let g = cl / lv.light_dist2;
+            let g = cl / lv.light_dist2 + lv.ambient;
             samples.push(Sample {
                 lv: LightView {
                     light: local(lv.light),
                     view: local(lv.view),
                     light_dist2: lv.light_dist2,
+                    ambient: 0.0,
                 },
                 rgb: std::array::from_fn(|k| {
                     c[k] - q.rho_d[k] * std::f64::consts::FRAC_1_PI * ctx.intensity[k] * g

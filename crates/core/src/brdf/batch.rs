@@ -7,7 +7,8 @@
 //!
 //! Radiance of channel `c` factors into two shape terms that do not depend on the
 //! albedos: `L_c = I_c * (rho_d_c * D + rho_s_c * S)` with
-//! `D = cos_i / (pi r^2)` and
+//! `D = (cos_i / r^2 + ambient) / pi` (the room light of
+//! [`LightView::ambient`](super::LightView)) and
 //! `S = exp(-((h.t/ax)^2 + (h.b/ay)^2) / (h.n)^2) * sqrt(cos_i / cos_r) / (4 pi ax ay r^2)`
 //! (zero when the light or the camera is below the offset surface).
 
@@ -30,6 +31,9 @@ pub struct GeometryBatch {
     pub v: [Vec<f32>; 3],
     /// `1 / r^2`, cm^-2.
     pub inv_r2: Vec<f32>,
+    /// Room light of every observation ([`LightView::ambient`](super::LightView), cm^-2):
+    /// added to `cos_i / r^2` in `D`. Set by the caller; [`begin`](Self::begin) keeps it.
+    pub ambient: f32,
     len: usize,
 }
 
@@ -240,7 +244,11 @@ pub fn shapes(w: &WardF32, g: &GeometryBatch, out: &mut Shapes) {
         let cis = ci.max(1e-6);
         let crs = cr.max(1e-6);
         let sv = exp_neg(e) * (cis / crs).sqrt() * w.norm * ir[i];
-        d[i] = if valid { cis * ir[i] * INV_PI } else { 0.0 };
+        d[i] = if valid {
+            (cis * ir[i] + g.ambient) * INV_PI
+        } else {
+            0.0
+        };
         s[i] = if valid { sv } else { 0.0 };
     }
 }
@@ -276,7 +284,11 @@ pub fn shapes_grad(w: &WardF32, g: &GeometryBatch, out: &mut Shapes) {
         let crs = cr.max(1e-6);
         let (icis, icrs) = (1.0 / cis, 1.0 / crs);
         let sv = exp_neg(-quad * ihn2) * (cis * icrs).sqrt() * w.norm * ir[i];
-        d[i] = if valid { cis * ir[i] * INV_PI } else { 0.0 };
+        d[i] = if valid {
+            (cis * ir[i] + g.ambient) * INV_PI
+        } else {
+            0.0
+        };
         s[i] = if valid { sv } else { 0.0 };
         // Invalid lanes (padding: h = 0) would give 0/0; their S is 0, but 0 * NaN is
         // not, so every derivative is masked too.
@@ -342,6 +354,52 @@ mod tests {
         g.set(37, f3(below - surf), [-0.3, 0.2, 10.0]);
         g.finish();
         (lvs, g)
+    }
+
+    #[test]
+    fn room_light_adds_to_the_diffuse_shape_as_in_the_f64_models() {
+        let (lvs, mut g) = setup();
+        g.ambient = 0.004;
+        let params = BrdfParams {
+            rho_d: [0.4, 0.2, 0.1],
+            rho_s: [0.3, 0.25, 0.2],
+            alpha_x: 0.12,
+            alpha_y: 0.25,
+            normal_theta_x: 0.1,
+            normal_theta_y: -0.07,
+            tangent_rotation: 0.0,
+        };
+        let p = Prepared::new(params);
+        let mut sh = Shapes::default();
+        shapes(&WardF32::new(&p), &g, &mut sh);
+        for (i, lv) in lvs.iter().enumerate().take(lvs.len() - 1) {
+            let lit = lv.with_ambient(0.004);
+            let (want, dark) = (
+                Ward.radiance_grad(&p, &lit, 2.0),
+                Ward.radiance(&p, lv, 2.0),
+            );
+            let generic = Ward.radiance(&p, &lit, 2.0);
+            for c in 0..3 {
+                let room = 2.0 * 0.004 / std::f64::consts::PI * params.rho_d[c];
+                let got = 2.0
+                    * (params.rho_d[c] * f64::from(sh.d[i]) + params.rho_s[c] * f64::from(sh.s[i]));
+                assert!(
+                    (got - want.value[c]).abs() <= 1e-5 * want.value[c],
+                    "obs {i}: {got} vs {}",
+                    want.value[c]
+                );
+                assert!((want.value[c] - dark[c] - room).abs() <= 1e-12, "obs {i}");
+                assert!((generic[c] - want.value[c]).abs() <= 1e-12, "obs {i}");
+                let d_rho_d = Ward.radiance_grad(&p, lv, 2.0).d_rho_d[c];
+                assert!(
+                    (want.d_rho_d[c] - d_rho_d - 2.0 * 0.004 / std::f64::consts::PI).abs() < 1e-12
+                );
+            }
+        }
+        // Padding stays dark.
+        for i in lvs.len()..g.padded_len() {
+            assert_eq!(sh.d[i], 0.0);
+        }
     }
 
     #[test]

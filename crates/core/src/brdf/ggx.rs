@@ -121,12 +121,14 @@ impl BrdfModel for Ggx {
             dk[2 + k] = kern * (dln_d - dcos_r / cos_r) + dist * dg2 / (4.0 * cos_r);
         }
 
+        // Room light (`LightView::ambient`): diffuse only, independent of the normal.
+        let amb = intensity * obs.ambient / PI;
         let mut out = RadianceGrad::default();
         for c in 0..3 {
             let fr = q.rho_s[c] + (1.0 - q.rho_s[c] - q.rho_d[c]) * w;
             let diff = q.rho_d[c] / PI;
-            out.value[c] = g * (cos_i * diff + fr * kern);
-            out.d_rho_d[c] = g * (cos_i / PI - w * kern);
+            out.value[c] = amb * q.rho_d[c] + g * (cos_i * diff + fr * kern);
+            out.d_rho_d[c] = amb + g * (cos_i / PI - w * kern);
             out.d_rho_s[c] = g * (1.0 - w) * kern;
             out.d_shared[0][c] = g * fr * dk[0];
             out.d_shared[1][c] = g * fr * dk[1];

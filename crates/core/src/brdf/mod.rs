@@ -192,7 +192,8 @@ impl Prepared {
 }
 
 /// One observation's geometry: unit directions from the surface point to the light and
-/// to the camera, in plane coordinates, and the squared light distance (cm^2).
+/// to the camera, in plane coordinates, the squared light distance (cm^2) and the room
+/// light recorded with it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct LightView {
     /// Unit direction to the light.
@@ -201,6 +202,11 @@ pub struct LightView {
     pub view: Vec3,
     /// Squared distance to the light, cm^2.
     pub light_dist2: f64,
+    /// Room light, as irradiance per unit light intensity (cm^-2, the units of
+    /// `cos(theta_i) / r^2`): it adds `I * rho_d / pi * ambient` to the radiance, the
+    /// light a uniformly lit room adds to a Lambertian surface. 0 for a point light
+    /// alone (every rendering under a new light).
+    pub ambient: f64,
 }
 
 impl LightView {
@@ -213,7 +219,13 @@ impl LightView {
             light: dl / r2.sqrt(),
             view: dv / dv.norm().max(1e-12),
             light_dist2: r2,
+            ambient: 0.0,
         }
+    }
+
+    /// The same geometry with room light `ambient` (see [`Self::ambient`]).
+    pub fn with_ambient(self, ambient: f64) -> Self {
+        Self { ambient, ..self }
     }
 }
 
@@ -232,7 +244,8 @@ pub struct RadianceGrad {
 }
 
 /// A reflectance model under the point-light radiometry of eq. (9):
-/// `L = I * f(l, v) * cos(theta_i) / r^2` per channel, zero when the light or the
+/// `L = I * f(l, v) * cos(theta_i) / r^2` per channel, plus the room light
+/// `I * rho_d / pi * ambient` ([`LightView::ambient`]), zero when the light or the
 /// camera is below the (offset) surface.
 pub trait BrdfModel: Sync + Send {
     /// Short name used in files and on the command line (`ward`, `ggx`).
@@ -253,7 +266,8 @@ pub trait BrdfModel: Sync + Send {
             return [0.0; 3];
         }
         let g = intensity * cos_i / obs.light_dist2;
-        [g * f[0], g * f[1], g * f[2]]
+        let a = intensity * obs.ambient / std::f64::consts::PI;
+        std::array::from_fn(|c| g * f[c] + a * p.params.rho_d[c])
     }
 
     /// Radiance and its analytic derivatives.

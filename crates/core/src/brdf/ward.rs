@@ -95,12 +95,14 @@ impl BrdfModel for Ward {
             rel[2 + k] = de + 0.5 * dcos_i[k] / d.cos_i - 0.5 * dcos_r / d.cos_r;
         }
 
+        // Room light (`LightView::ambient`): diffuse only, independent of the normal.
+        let amb = intensity * obs.ambient / PI;
         let mut out = RadianceGrad::default();
         for c in 0..3 {
             let diff = q.rho_d[c] / PI;
             let spec = q.rho_s[c] * s;
-            out.value[c] = g * (diff * d.cos_i + spec);
-            out.d_rho_d[c] = g * d.cos_i / PI;
+            out.value[c] = amb * q.rho_d[c] + g * (diff * d.cos_i + spec);
+            out.d_rho_d[c] = amb + g * d.cos_i / PI;
             out.d_rho_s[c] = g * s;
             out.d_shared[0][c] = g * spec * rel[0];
             out.d_shared[1][c] = g * spec * rel[1];
