@@ -9,7 +9,7 @@ use crate::FitError;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum RoomLightMode {
-    /// Estimated; applied unless at the top of the range searched.
+    /// Estimated for video captures; applied unless at the top of the range searched.
     #[default]
     Auto,
     /// Estimated and applied whatever it is.
@@ -51,9 +51,10 @@ pub struct FitConfig {
     pub censor_clipped: bool,
     /// Whether to estimate the room light (one constant irradiance over the capture, see
     /// [`crate::room`]) and fit every observation as flash plus room light, so that the
-    /// maps hold the material alone: `auto` applies an estimate unless it reached the top
-    /// of the range searched (as bright as the flash: the data could not tell it from
-    /// the material), `on` applies it always, `off` reads every observation as lit by the
+    /// maps hold the material alone: `auto` for captures whose flash frames come from a
+    /// video (a sweep over distances tells it from albedo), applied unless it reached the
+    /// top of the range searched (as bright as the flash); `on` for any capture (photo
+    /// sets too), applied whatever it is; `off`: every observation is read as lit by the
     /// flash alone (the paper's model).
     pub room_light: RoomLightMode,
     /// Observations within this many frame pixels of the image border are dropped.

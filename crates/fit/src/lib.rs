@@ -193,8 +193,16 @@ pub fn fit(
 ) -> Result<(FittedMaps, FitSummary), FitError> {
     cfg.validate()?;
     let t = Instant::now();
+    // `auto` estimates it where the flash frames come from a video: a sweep over
+    // distances tells room light from albedo; a handful of photos from one distance band
+    // hardly does (real cards-blue: 73-100% of the flash's light, unverifiable).
+    let swept = capture
+        .sources
+        .iter()
+        .any(|s| s.stream == 0 && s.kind == svbrdf_core::capture::SourceKind::Video);
     let mut room = match cfg.room_light {
         RoomLightMode::Off => None,
+        RoomLightMode::Auto if !swept => None,
         RoomLightMode::Auto | RoomLightMode::On => stages::room_light(obs, capture, cfg)?,
     };
     // At the top of the range searched the estimate is more likely material the flash
@@ -204,7 +212,7 @@ pub fn fit(
     if let (Some(r), true, RoomLightMode::Auto) = (room.as_mut(), at_bound, cfg.room_light) {
         r.applied = false;
     }
-    let wanted = cfg.room_light != RoomLightMode::Off;
+    let wanted = room.is_some();
     obs.ambient = room.filter(|r| r.applied).map_or(0.0, |r| r.ambient);
     let t_room = t.elapsed().as_secs_f64();
     let obs = &*obs;
@@ -314,6 +322,14 @@ mod tests {
         );
         let mut cap = RegisteredCapture::new("test", region, 10.0);
         cap.light_intensity = Some([intensity; 3]);
+        // A flash video, as the room light's `auto` wants.
+        cap.sources.push(svbrdf_core::capture::Source {
+            kind: svbrdf_core::capture::SourceKind::Video,
+            path: "flash.mp4".into(),
+            encoding: svbrdf_core::maps::Encoding::Srgb,
+            stream: 0,
+            video: None,
+        });
         (obs, cap, truth)
     }
 
@@ -510,6 +526,24 @@ mod tests {
         assert!(on.room_light.is_some_and(|r| r.applied));
         assert!(ambient > 0.0);
         assert!(on.warnings.iter().any(|w| w.contains("was applied")));
+    }
+
+    /// `auto` leaves photo sets (image sources) to the paper's model; `on` estimates.
+    #[test]
+    fn photo_sets_get_room_light_only_when_asked() {
+        let run = |mode: RoomLightMode| {
+            let (mut obs, mut cap, _) = two_materials_in_room(true, 100.0, 0.0012);
+            cap.sources[0].kind = svbrdf_core::capture::SourceKind::Images;
+            let cfg = FitConfig {
+                refine: false,
+                select_folds: 0,
+                room_light: mode,
+                ..FitConfig::default()
+            };
+            fit(&mut obs, &cap, &cfg, &NoProgress).unwrap().1.room_light
+        };
+        assert!(run(RoomLightMode::Auto).is_none());
+        assert!(run(RoomLightMode::On).is_some_and(|r| r.applied));
     }
 
     #[test]
