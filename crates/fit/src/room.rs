@@ -74,6 +74,23 @@ struct Sums {
 }
 
 impl Sums {
+    /// Add one observation: diffuse shape `d`, lobe shape `s`, values `y` (divided by
+    /// the intensity).
+    fn push(&mut self, d: f64, s: f64, y: [f64; 3]) {
+        self.n += 1.0;
+        self.d += d;
+        self.dd += d * d;
+        self.s += s;
+        self.ds += d * s;
+        self.ss += s * s;
+        for (c, yc) in y.into_iter().enumerate() {
+            self.y[c] += yc;
+            self.dy[c] += d * yc;
+            self.sy[c] += s * yc;
+            self.yy[c] += yc * yc;
+        }
+    }
+
     /// Least-squares error of `y = rho_d (d + k) + rho_s s` per channel with
     /// `rho_d, rho_s >= 0`, summed over the channels.
     fn error(&self, k: f64) -> f64 {
@@ -137,19 +154,7 @@ fn pixel_sums(
         let d = ci / (std::f64::consts::PI * lv.light_dist2);
         let s = model.radiance(lobe, &lv, 1.0)[0];
         let y = obs.color(o);
-        t.n += 1.0;
-        t.d += d;
-        t.dd += d * d;
-        t.s += s;
-        t.ds += d * s;
-        t.ss += s * s;
-        for c in 0..3 {
-            let yc = y[c] / intensity[c];
-            t.y[c] += yc;
-            t.dy[c] += d * yc;
-            t.sy[c] += s * yc;
-            t.yy[c] += yc * yc;
-        }
+        t.push(d, s, std::array::from_fn(|c| y[c] / intensity[c]));
         median_d.push(d);
     }
     (t.n >= MIN_OBSERVATIONS as f64).then_some(t)
@@ -257,19 +262,7 @@ mod tests {
             let lv = LightView::from_points(Vec3::zeros(), cam + Vec3::new(1.4, -0.3, 0.0), cam);
             let y = Ward.radiance(&prep, &lv.with_ambient(ambient), 1.0);
             let d = lv.light.z / (std::f64::consts::PI * lv.light_dist2);
-            let s = Ward.radiance(&lobe, &lv, 1.0)[0];
-            t.n += 1.0;
-            t.d += d;
-            t.dd += d * d;
-            t.s += s;
-            t.ds += d * s;
-            t.ss += s * s;
-            for c in 0..3 {
-                t.y[c] += y[c];
-                t.dy[c] += d * y[c];
-                t.sy[c] += s * y[c];
-                t.yy[c] += y[c] * y[c];
-            }
+            t.push(d, Ward.radiance(&lobe, &lv, 1.0)[0], y);
         }
         t
     }

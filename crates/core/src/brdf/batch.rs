@@ -332,6 +332,19 @@ mod tests {
     use super::*;
     use crate::brdf::{BrdfModel, BrdfParams, LightView, Ward};
 
+    /// A tilted anisotropic lobe for the comparisons with the f64 model.
+    fn tilted_anisotropic() -> BrdfParams {
+        BrdfParams {
+            rho_d: [0.4, 0.2, 0.1],
+            rho_s: [0.3, 0.25, 0.2],
+            alpha_x: 0.12,
+            alpha_y: 0.25,
+            normal_theta_x: 0.1,
+            normal_theta_y: -0.07,
+            tangent_rotation: 0.0,
+        }
+    }
+
     fn setup() -> (Vec<LightView>, GeometryBatch) {
         let mut lvs = Vec::new();
         let mut g = GeometryBatch::default();
@@ -360,15 +373,7 @@ mod tests {
     fn room_light_adds_to_the_diffuse_shape_as_in_the_f64_models() {
         let (lvs, mut g) = setup();
         g.ambient = 0.004;
-        let params = BrdfParams {
-            rho_d: [0.4, 0.2, 0.1],
-            rho_s: [0.3, 0.25, 0.2],
-            alpha_x: 0.12,
-            alpha_y: 0.25,
-            normal_theta_x: 0.1,
-            normal_theta_y: -0.07,
-            tangent_rotation: 0.0,
-        };
+        let params = tilted_anisotropic();
         let p = Prepared::new(params);
         let mut sh = Shapes::default();
         shapes(&WardF32::new(&p), &g, &mut sh);
@@ -416,15 +421,7 @@ mod tests {
     fn shapes_and_derivatives_match_the_f64_model() {
         let (lvs, g) = setup();
         assert_eq!(g.padded_len() % LANES, 0);
-        let params = BrdfParams {
-            rho_d: [0.4, 0.2, 0.1],
-            rho_s: [0.3, 0.25, 0.2],
-            alpha_x: 0.12,
-            alpha_y: 0.25,
-            normal_theta_x: 0.1,
-            normal_theta_y: -0.07,
-            tangent_rotation: 0.0,
-        };
+        let params = tilted_anisotropic();
         let p = Prepared::new(params);
         let w = WardF32::new(&p);
         let mut sh = Shapes::default();
