@@ -184,7 +184,8 @@ const ENERGY_MARGIN: f64 = 0.95;
 
 /// Fit maps to observations. `progress` sees the validation, clustering, fitting and
 /// refinement. With `select_folds` > 0 the settings are first chosen by how well they
-/// predict held-out frames ([`select`]), and the record lands in the summary.
+/// predict held-out frames ([`select`]), and the record lands in the summary. The room
+/// light found (`room_light`) is left in `obs.ambient`.
 pub fn fit(
     obs: &mut Observations,
     capture: &RegisteredCapture,
@@ -192,27 +193,11 @@ pub fn fit(
     progress: &dyn Progress,
 ) -> Result<(FittedMaps, FitSummary), FitError> {
     cfg.validate()?;
+    // The estimate reads the observations under no room light, whatever an earlier
+    // fit of the same observations left in them.
+    obs.ambient = 0.0;
     let t = Instant::now();
-    // `auto` estimates it where the flash frames come from a video: a sweep over
-    // distances tells room light from albedo; a handful of photos from one distance band
-    // hardly does (real cards-blue: 73-100% of the flash's light, unverifiable).
-    let swept = capture
-        .sources
-        .iter()
-        .any(|s| s.stream == 0 && s.kind == svbrdf_core::capture::SourceKind::Video);
-    let mut room = match cfg.room_light {
-        RoomLightMode::Off => None,
-        RoomLightMode::Auto if !swept => None,
-        RoomLightMode::Auto | RoomLightMode::On => stages::room_light(obs, capture, cfg)?,
-    };
-    // At the top of the range searched the estimate is more likely material the flash
-    // model misses than room light (simulated photo sets of glossy facets: three times
-    // the true room light); `auto` then fits without it.
-    let at_bound = room.is_some_and(|r| r.share_of_flash >= room::MAX_SHARE);
-    if let (Some(r), true, RoomLightMode::Auto) = (room.as_mut(), at_bound, cfg.room_light) {
-        r.applied = false;
-    }
-    let wanted = room.is_some();
+    let room = stages::room_light(obs, capture, cfg)?;
     obs.ambient = room.filter(|r| r.applied).map_or(0.0, |r| r.ambient);
     let t_room = t.elapsed().as_secs_f64();
     let obs = &*obs;
@@ -227,23 +212,11 @@ pub fn fit(
             (maps, summary)
         }
     };
-    if wanted {
+    if let Some(r) = &room {
         summary
             .timings
             .insert(0, ("room light".to_string(), t_room));
-    }
-    if let Some(r) = room.filter(|_| at_bound) {
-        summary.warnings.push(if r.applied {
-            format!(
-                "the room light came out at the top of the range searched ({:.0}% of the flash's light on the surface) and was applied (room_light on): the maps' albedos are doubtful",
-                100.0 * r.share_of_flash
-            )
-        } else {
-            format!(
-                "the room light could not be told from the material (its estimate reached the top of the range searched, {:.0}% of the flash's light on the surface): fitted as lit by the flash alone, so any room light is in the albedos",
-                100.0 * r.share_of_flash
-            )
-        });
+        summary.warnings.extend(r.warning());
     }
     summary.room_light = room;
     Ok((maps, summary))

@@ -44,6 +44,27 @@ pub struct RoomLight {
     pub observations: usize,
 }
 
+impl RoomLight {
+    /// Whether the estimate reached the top of the range searched ([`MAX_SHARE`]).
+    pub fn at_bound(&self) -> bool {
+        self.share_of_flash >= MAX_SHARE
+    }
+
+    /// The warning an estimate at the top of the range searched calls for.
+    pub fn warning(&self) -> Option<String> {
+        let share = 100.0 * self.share_of_flash;
+        match (self.at_bound(), self.applied) {
+            (false, _) => None,
+            (true, true) => Some(format!(
+                "the room light came out at the top of the range searched ({share:.0}% of the flash's light on the surface) and was applied (room_light on): the maps' albedos are doubtful"
+            )),
+            (true, false) => Some(format!(
+                "the room light could not be told from the material (its estimate reached the top of the range searched, {share:.0}% of the flash's light on the surface): fitted as lit by the flash alone, so any room light is in the albedos"
+            )),
+        }
+    }
+}
+
 /// The largest room light considered, as a share of the flash's diffuse light.
 pub const MAX_SHARE: f64 = 1.0;
 
@@ -100,28 +121,14 @@ impl Sums {
         let mut e = 0.0;
         for c in 0..3 {
             let (b1, b2) = (self.dy[c] + k * self.y[c], self.sy[c]);
-            // Unconstrained solution, then the one-albedo fits where it leaves the
-            // non-negative quadrant.
-            let both = (det > 1e-12 * a11 * a22).then(|| {
-                let x1 = (a22 * b1 - a12 * b2) / det;
-                let x2 = (a11 * b2 - a12 * b1) / det;
-                (x1 >= 0.0 && x2 >= 0.0).then_some(x1 * b1 + x2 * b2)
-            });
-            let explained = match both.flatten() {
-                Some(v) => v,
-                None => {
-                    let only_d = if a11 > 0.0 {
-                        b1.max(0.0).powi(2) / a11
-                    } else {
-                        0.0
-                    };
-                    let only_s = if a22 > 0.0 {
-                        b2.max(0.0).powi(2) / a22
-                    } else {
-                        0.0
-                    };
-                    only_d.max(only_s)
-                }
+            // Unconstrained solution, or where it leaves the non-negative quadrant the
+            // better of the one-albedo fits.
+            let (x1, x2) = ((a22 * b1 - a12 * b2) / det, (a11 * b2 - a12 * b1) / det);
+            let explained = if det > 1e-12 * a11 * a22 && x1 >= 0.0 && x2 >= 0.0 {
+                x1 * b1 + x2 * b2
+            } else {
+                let one = |b: f64, a: f64| if a > 0.0 { b.max(0.0).powi(2) / a } else { 0.0 };
+                one(b1, a11).max(one(b2, a22))
             };
             e += (self.yy[c] - explained).max(0.0);
         }

@@ -10,12 +10,13 @@ use svbrdf_core::brdf::{BrdfParams, ModelKind};
 use svbrdf_core::capture::RegisteredCapture;
 use svbrdf_core::progress::Progress;
 
+use crate::room::RoomLight;
 use crate::solver::Freedom;
 use crate::tree::Context;
 use crate::{
     cluster, confidence, light_intensity, refine, render, summary, tree, ClusterInfo, FitConfig,
-    FitError, FitSummary, FittedMaps, IntensitySource, Observations, CLIPPED_PEAK_WARNING,
-    ENERGY_MARGIN, NEAR_MIRROR_DEG, SPECULAR_UNSEEN_WARNING,
+    FitError, FitSummary, FittedMaps, IntensitySource, Observations, RoomLightMode,
+    CLIPPED_PEAK_WARNING, ENERGY_MARGIN, NEAR_MIRROR_DEG, SPECULAR_UNSEEN_WARNING,
 };
 
 /// The cluster tree's result, before any per-pixel refinement.
@@ -171,14 +172,42 @@ pub(crate) fn fit_tree(
     })
 }
 
-/// The room light of a capture ([`crate::room`]): the initial clusters, each fitted
-/// with an isotropic lobe and a flat normal under no room light, give the lobe shapes;
-/// the full model is used even for a diffuse-only fit, so that both read the room alike.
+/// The room light of a capture ([`crate::room`]) as `cfg.room_light` asks: `auto`
+/// estimates it where the flash frames come from a video (a sweep over distances tells
+/// room light from albedo; a handful of photos from one distance band hardly does: real
+/// cards-blue read 73-100% of the flash's light, unverifiable) and does not apply an
+/// estimate at the top of the range searched (more likely material the flash model
+/// misses than room light: simulated glossy facets read three times the true room
+/// light). `obs` must hold no room light.
 pub(crate) fn room_light(
     obs: &Observations,
     capture: &RegisteredCapture,
     cfg: &FitConfig,
-) -> Result<Option<crate::room::RoomLight>, FitError> {
+) -> Result<Option<RoomLight>, FitError> {
+    let swept = capture
+        .sources
+        .iter()
+        .any(|s| s.stream == 0 && s.kind == svbrdf_core::capture::SourceKind::Video);
+    let auto = match cfg.room_light {
+        RoomLightMode::Off => return Ok(None),
+        RoomLightMode::Auto if !swept => return Ok(None),
+        mode => mode == RoomLightMode::Auto,
+    };
+    let mut room = estimate_room_light(obs, capture, cfg)?;
+    if let Some(r) = room.as_mut().filter(|r| auto && r.at_bound()) {
+        r.applied = false;
+    }
+    Ok(room)
+}
+
+/// The estimate itself: the initial clusters, each fitted with an isotropic lobe and a
+/// flat normal under no room light, give the lobe shapes; the full model is used even
+/// for a diffuse-only fit, so that both read the room alike.
+fn estimate_room_light(
+    obs: &Observations,
+    capture: &RegisteredCapture,
+    cfg: &FitConfig,
+) -> Result<Option<RoomLight>, FitError> {
     let (intensity, _) = light_intensity(obs, capture, cfg)?;
     let probe_cfg = FitConfig {
         diffuse_only: false,
