@@ -78,6 +78,11 @@ pub struct ExposureCurve {
     pub residual_spread_fixed: Option<f64>,
     /// Samples used.
     pub samples: usize,
+    /// The room light the gain model found: one irradiance reflected by every
+    /// point's diffuse brightness, in units of the flash's `cos(theta_l) / d^2`
+    /// (1/cm^2; e.g. 0.001 is as bright as the flash at 1/sqrt(0.001) = 32 cm).
+    #[serde(default)]
+    pub ambient_irradiance: Option<f64>,
     /// Per flash frame.
     pub frames: Vec<FrameGain>,
     /// Why it failed, or what is doubtful.

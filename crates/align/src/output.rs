@@ -251,6 +251,7 @@ fn exposure_gains(
             residual_spread: None,
             residual_spread_fixed: None,
             samples: 0,
+            ambient_irradiance: None,
             frames,
             note,
         }
@@ -306,6 +307,7 @@ fn exposure_gains(
             c.residual_spread = Some(est.residual_spread);
             c.residual_spread_fixed = Some(est.residual_spread_fixed);
             c.samples = est.samples;
+            c.ambient_irradiance = est.ambient_irradiance;
             if drift {
                 for (i, &k) in flash.iter().enumerate() {
                     cap.frames[k].exposure_gain = Some(est.gains[i]);

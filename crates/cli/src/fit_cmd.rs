@@ -159,11 +159,12 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
         }
     }
     say!(
-        "clusters: {} initial (k-means elbow), {} final, deepest split level {}; {} stopped at the iteration cap",
+        "clusters: {} initial (k-means elbow), {} final, deepest split level {}; {} stopped at the iteration cap; {} pixels moved to a neighbouring cluster that fits them better",
         s.initial_clusters,
         s.final_clusters,
         s.max_depth,
-        s.unconverged_clusters.len()
+        s.unconverged_clusters.len(),
+        s.reassigned_pixels
     );
     if s.lobe_refits > 0 {
         say!(

@@ -39,8 +39,13 @@ pub struct ExposureSample {
 /// Settings of the gain estimate.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 pub struct ExposureConfig {
-    /// Model ambient light per point (`c_p`); off: flash only.
+    /// Model ambient light (`c_p`); off: flash only.
     pub ambient: bool,
+    /// The ambient light is one room irradiance `A` shared by every point and
+    /// reflected by its diffuse brightness (`c_p = a_p * A`, the fit's room-light
+    /// model); off: a free `c_p` per point.
+    #[serde(default)]
+    pub shared_ambient: bool,
     /// Width of the half-angle bins of the shared gloss term `S`, degrees (> 0).
     pub bin_deg: f64,
     /// Alternating rounds (>= 1).
@@ -54,6 +59,7 @@ impl Default for ExposureConfig {
     fn default() -> Self {
         Self {
             ambient: true,
+            shared_ambient: true,
             bin_deg: 4.0,
             rounds: 30,
             min_frame_samples: 30,
@@ -76,6 +82,10 @@ pub struct GainEstimate {
     pub residual_spread_fixed: f64,
     /// Samples used (points seen in at least two frames).
     pub samples: usize,
+    /// The shared room irradiance `A` (with `shared_ambient`), in units of the
+    /// flash's irradiance factor `cos(theta_l) / d^2` (1/cm^2): the room light as
+    /// bright as the flash at that factor. `None` with a per-point or no ambient term.
+    pub ambient_irradiance: Option<f64>,
 }
 
 impl GainEstimate {
@@ -181,6 +191,7 @@ pub fn estimate_gains(
         used: &used,
         bin_of: &bin_of,
         ambient: cfg.ambient,
+        shared: cfg.ambient && cfg.shared_ambient,
         frozen_gains: false,
     };
     // Unknowns: log gain per frame, log gloss per bin (the fullest bin fixed at 0),
@@ -190,6 +201,7 @@ pub fn estimate_gains(
         s: vec![0.0; nodes],
         a: vec![0.0; points],
         c: vec![0.0; points],
+        amb: 0.0,
     };
     {
         let (mut num, mut den) = (vec![0.0; points], vec![0.0; points]);
@@ -246,6 +258,7 @@ pub fn estimate_gains(
         residual_spread: scale,
         residual_spread_fixed: spread_fixed,
         samples: used.len(),
+        ambient_irradiance: model.shared.then_some(x.amb),
     })
 }
 
@@ -289,7 +302,8 @@ mod tests {
     use super::*;
 
     /// Samples of a textured plane seen by `frames` frames of a sweep whose gain
-    /// follows `gain(f)`, with ambient light, a gloss term and a few highlights.
+    /// follows `gain(f)`, with a room irradiance `ambient` (1/cm^2, reflected by the
+    /// albedo), a gloss term and a few highlights.
     fn sweep(frames: usize, gain: impl Fn(usize) -> f64, ambient: f64) -> Vec<ExposureSample> {
         let side = 24;
         let mut out = Vec::new();
@@ -311,7 +325,7 @@ mod tests {
                 let half = cos.acos();
                 let albedo = 0.2 + 0.15 * ((p * 7919) % 13) as f64 / 13.0;
                 let gloss = 1.0 + 0.5 * (-half / 0.3).exp();
-                let mut v = gain(f) * (albedo * 200.0 * cos / d2 * gloss + ambient);
+                let mut v = gain(f) * albedo * 200.0 * (cos / d2 * gloss + ambient);
                 if (p + f) % 37 == 0 {
                     v *= 3.0; // a stray highlight
                 }
@@ -327,9 +341,24 @@ mod tests {
         out
     }
 
-    fn check(frames: usize, gain: impl Fn(usize) -> f64 + Copy, ambient: f64, tol: f64) {
+    fn check(
+        frames: usize,
+        gain: impl Fn(usize) -> f64 + Copy,
+        ambient: f64,
+        tol: f64,
+    ) -> GainEstimate {
+        check_with(frames, gain, ambient, tol, &ExposureConfig::default())
+    }
+
+    fn check_with(
+        frames: usize,
+        gain: impl Fn(usize) -> f64 + Copy,
+        ambient: f64,
+        tol: f64,
+        cfg: &ExposureConfig,
+    ) -> GainEstimate {
         let s = sweep(frames, gain, ambient);
-        let e = estimate_gains(&s, frames, 24 * 24, None, &ExposureConfig::default()).unwrap();
+        let e = estimate_gains(&s, frames, 24 * 24, None, cfg).unwrap();
         let gm = ((0..frames).map(|f| gain(f).ln()).sum::<f64>() / frames as f64).exp();
         // Holding the gains at 1 explains a drift much worse, a steady exposure as well.
         let drifts = (0..frames).any(|f| (gain(f) / gm).log2().abs() > 0.2);
@@ -343,6 +372,7 @@ mod tests {
                 e.gains[f]
             );
         }
+        e
     }
 
     #[test]
@@ -351,13 +381,31 @@ mod tests {
     }
 
     #[test]
-    fn ambient_light_does_not_bias_the_gains() {
-        check(40, |f| ((f as f64) / 13.0).cos().exp2(), 0.05, 0.02);
+    fn room_light_does_not_bias_the_gains_and_is_found() {
+        // About 15% of the flash's light at the sweep's distances.
+        let e = check(40, |f| ((f as f64) / 13.0).cos().exp2(), 0.001, 0.01);
+        let a = e.ambient_irradiance.unwrap();
+        assert!((a / 0.001 - 1.0).abs() < 0.1, "room irradiance {a}");
+        // A free ambient term per point also keeps the gains.
+        let per_point = ExposureConfig {
+            shared_ambient: false,
+            ..ExposureConfig::default()
+        };
+        let e = check_with(
+            40,
+            |f| ((f as f64) / 13.0).cos().exp2(),
+            0.001,
+            0.01,
+            &per_point,
+        );
+        assert_eq!(e.ambient_irradiance, None);
     }
 
     #[test]
     fn fixed_exposure_comes_out_flat() {
-        check(30, |_| 1.0, 0.02, 0.01);
+        let e = check(30, |_| 1.0, 0.0004, 0.01);
+        let a = e.ambient_irradiance.unwrap();
+        assert!((a / 0.0004 - 1.0).abs() < 0.1, "room irradiance {a}");
     }
 
     #[test]
@@ -384,8 +432,10 @@ struct Params {
     s: Vec<f64>,
     /// Diffuse brightness per point.
     a: Vec<f64>,
-    /// Ambient light per point (>= 0).
+    /// Ambient light per point (>= 0), when not shared.
     c: Vec<f64>,
+    /// Shared room irradiance (>= 0), in units of the irradiance factor.
+    amb: f64,
 }
 
 /// The samples and how they are binned.
@@ -393,6 +443,8 @@ struct Model<'a> {
     used: &'a [ExposureSample],
     bin_of: &'a dyn Fn(&ExposureSample) -> (usize, f64),
     ambient: bool,
+    /// One room irradiance for every point (`c_p = a_p * amb`).
+    shared: bool,
     /// Hold every gain at 1 (the fixed-exposure model, for comparison).
     frozen_gains: bool,
 }
@@ -404,7 +456,8 @@ impl Model<'_> {
         let g = x.u[s.frame as usize].exp();
         let (k, t) = (self.bin_of)(s);
         let gs = s.irradiance * (x.s[k] * (1.0 - t) + x.s[k + 1] * t).exp();
-        let m = g * (x.a[p] * gs + x.c[p]);
+        let c = if self.shared { x.a[p] * x.amb } else { x.c[p] };
+        let m = g * (x.a[p] * gs + c);
         ((s.value - m) / s.value, g, gs, m)
     }
 
@@ -447,7 +500,7 @@ impl Model<'_> {
         own: &[bool],
     ) -> Option<Params> {
         let (nf, nb, np) = (x.u.len(), x.s.len(), x.a.len());
-        let n = nf + nb;
+        let n = nf + nb + usize::from(self.shared);
         let mut h = nalgebra::DMatrix::<f64>::zeros(n, n);
         let mut rhs = nalgebra::DVector::<f64>::zeros(n);
         // Per point: 2x2 block, its gradient and its coupling to the globals (sparse).
@@ -461,17 +514,25 @@ impl Model<'_> {
             // r = (I - m) / I: derivatives of r.
             let jf = -m * iv;
             let jb = -g * x.a[p] * gs * iv;
-            let ja = -g * gs * iv;
-            let jc = if self.ambient { -g * iv } else { 0.0 };
             let (k, t) = (self.bin_of)(s);
-            let js = [
+            let mut js = [
                 (s.frame as usize, jf),
                 (nf + k, jb * (1.0 - t)),
                 (nf + k + 1, jb * t),
+                (0, 0.0),
             ];
-            for (i, ji) in js {
+            let (ja, jc) = if self.shared {
+                js[3] = (nf + nb, -g * x.a[p] * iv);
+                (-g * (gs + x.amb) * iv, 0.0)
+            } else if self.ambient {
+                (-g * gs * iv, -g * iv)
+            } else {
+                (-g * gs * iv, 0.0)
+            };
+            let js = &js[..if self.shared { 4 } else { 3 }];
+            for &(i, ji) in js {
                 rhs[i] += wi * ji * r;
-                for (l, jl) in js {
+                for &(l, jl) in js {
                     h[(i, l)] += wi * ji * jl;
                 }
             }
@@ -482,7 +543,7 @@ impl Model<'_> {
             gp[p][0] += wi * ja * r;
             gp[p][1] += wi * jc * r;
             let cp = &mut coupling[p];
-            for (k, j) in js {
+            for &(k, j) in js {
                 let add = [wi * ja * j, wi * jc * j];
                 match cp.iter_mut().find(|e| e.0 == k) {
                     Some(e) => {
@@ -498,7 +559,7 @@ impl Model<'_> {
             .iter()
             .map(|b| {
                 let d0 = b[0] * (1.0 + lambda) + 1e-12;
-                let d2 = if self.ambient {
+                let d2 = if self.ambient && !self.shared {
                     b[2] * (1.0 + lambda) + 1e-12
                 } else {
                     1.0
@@ -564,6 +625,9 @@ impl Model<'_> {
         for b in 0..nb {
             next.s[b] += delta[nf + b];
         }
+        if self.shared {
+            next.amb = (x.amb + delta[nf + nb]).max(0.0);
+        }
         for p in 0..np {
             let Some(iv) = inv[p] else { continue };
             let mut v = [gp[p][0], gp[p][1]];
@@ -574,13 +638,13 @@ impl Model<'_> {
             let da = -(iv[0] * v[0] + iv[1] * v[1]);
             let dc = -(iv[1] * v[0] + iv[2] * v[1]);
             next.a[p] = (x.a[p] + da).max(0.0);
-            next.c[p] = if self.ambient {
+            next.c[p] = if self.ambient && !self.shared {
                 (x.c[p] + dc).max(0.0)
             } else {
                 0.0
             };
         }
-        if next.u.iter().chain(&next.s).all(|v| v.is_finite()) {
+        if next.u.iter().chain(&next.s).all(|v| v.is_finite()) && next.amb.is_finite() {
             Some(next)
         } else {
             None

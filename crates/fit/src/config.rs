@@ -18,6 +18,19 @@ pub enum RoomLightMode {
     Off,
 }
 
+/// Which per-pixel colour the initial clusters group ([`FitConfig::cluster_colour`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ClusterColour {
+    /// The mean of the pixel's observations (the paper's average colour).
+    #[default]
+    Mean,
+    /// The median of its unclipped observations over the flash's `cos / r^2`
+    /// ([`crate::observations::Observations::albedo_colors`]): not brightened where a
+    /// highlight passed, nor darkened where the frames were far.
+    Albedo,
+}
+
 /// Relative drop of a part's solver cost for which a turned tangent is kept
 /// ([`FitConfig::tangent_rotation_depth`]): below it the turn is noise (an isotropic
 /// lobe's cost does not depend on it).
@@ -94,6 +107,19 @@ pub struct FitConfig {
     /// above level 6, so the limit costs little there; restarting at every level cost
     /// 50 s for diffuse RMSE 0.0216 -> 0.0213.
     pub split_restart_depth: usize,
+    /// The colour the initial clusters group. `albedo` with `reassign_pixels` was
+    /// measured on 12 hard-small captures (docs/BENCHMARKS.md, session 28): diffuse
+    /// RMSE lower on 11 and normals better on 11, tiles relit at 1 mm 59 -> 35% and
+    /// 76 -> 50% on the worst light, but one patchwork capture got a lobe no frame saw
+    /// (its light 1 at 1 mm 218 -> 612%) and a toy two-material capture splits by
+    /// position into six initial clusters; not the default until both are solved.
+    pub cluster_colour: ClusterColour,
+    /// Move pixels whose error under their cluster's BRDF is several times the
+    /// cluster's typical error to a neighbouring cluster whose BRDF explains them far
+    /// better ([`crate::reassign`]; our addition). Off by default: with the mean
+    /// colour alone it was mixed (diffuse better on 4 of 12 hard-small captures, worse
+    /// on 4).
+    pub reassign_pixels: bool,
     /// Whether lobes may be turned away from the plane's axes (see
     /// [`tangent_rotation_depth`](Self::tangent_rotation_depth)): `None` (default)
     /// lets the held-out validation decide ([`crate::select`], candidate
@@ -224,6 +250,8 @@ impl Default for FitConfig {
             min_cluster_px: 50,
             min_split_gain: 0.02,
             split_restart_depth: 6,
+            cluster_colour: ClusterColour::Mean,
+            reassign_pixels: false,
             tangent_rotation_depth: 3,
             turned_grain: None,
             max_depth: 24,

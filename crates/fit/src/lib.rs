@@ -24,6 +24,7 @@ pub mod holdout;
 mod intensity;
 pub mod observations;
 pub mod output;
+mod reassign;
 mod refine;
 pub mod render;
 mod resources;

@@ -25,7 +25,7 @@ use svbrdf_core::brdf::BrdfParams;
 use svbrdf_core::capture::RegisteredCapture;
 use svbrdf_core::progress::{NoProgress, Progress};
 
-use crate::config::FitConfig;
+use crate::config::{ClusterColour, FitConfig};
 use crate::observations::Observations;
 use crate::render::{squared_errors, SquaredErrors};
 use crate::stages::{fit_tree, refine_stage, TreeStage};
@@ -225,13 +225,15 @@ fn validate(
     // chooses it the same way): the elbow search is the validation fits' largest fixed
     // cost, and it is not what the candidates differ in.
     let everything = obs.subset(&vec![true; obs.frames.len()], step)?;
-    let colors: Vec<[f64; 3]> = everything
-        .mean_colors()
-        .into_iter()
-        .enumerate()
-        .filter(|(p, _)| everything.count(*p) >= cfg.min_observations)
-        .map(|(_, c)| c)
-        .collect();
+    let colors: Vec<[f64; 3]> = match cfg.cluster_colour {
+        ClusterColour::Mean => everything.mean_colors(),
+        ClusterColour::Albedo => everything.albedo_colors(),
+    }
+    .into_iter()
+    .enumerate()
+    .filter(|(p, _)| everything.count(*p) >= cfg.min_observations)
+    .map(|(_, c)| c)
+    .collect();
     drop(everything);
     if colors.len() < cfg.k_max {
         return Ok(skipped(format!(

@@ -10,6 +10,7 @@ use svbrdf_core::brdf::{BrdfParams, ModelKind};
 use svbrdf_core::capture::RegisteredCapture;
 use svbrdf_core::progress::Progress;
 
+use crate::config::ClusterColour;
 use crate::room::RoomLight;
 use crate::solver::Freedom;
 use crate::tree::Context;
@@ -35,6 +36,8 @@ pub(crate) struct TreeStage {
     /// Every pixel's parameters: its cluster's (the refinement's start).
     pub(crate) params: Vec<BrdfParams>,
     unconverged: Vec<u32>,
+    /// Pixels moved between clusters ([`crate::reassign`]).
+    reassigned: usize,
     rmse_clusters: f64,
     timings: Vec<(String, f64)>,
 }
@@ -146,6 +149,14 @@ pub(crate) fn fit_tree(
             unconverged.push(i as u32);
         }
     }
+    let mut leaves = leaves;
+    let t = Instant::now();
+    let moves = if cfg.reassign_pixels {
+        crate::reassign::reassign(&ctx, obs.grid.width, &mut leaves, &mut cluster)
+    } else {
+        crate::reassign::Moves::default()
+    };
+    timings.push(("pixels reassigned".to_string(), t.elapsed().as_secs_f64()));
     cluster::fill_unobserved(&obs.grid, &mut cluster, &covered);
     for (p, c) in params.iter_mut().zip(&cluster) {
         *p = leaves[*c as usize].params;
@@ -167,6 +178,7 @@ pub(crate) fn fit_tree(
         cluster,
         params,
         unconverged,
+        reassigned: moves.moved,
         rmse_clusters,
         timings,
     })
@@ -265,7 +277,15 @@ pub(crate) fn initial_clusters(obs: &Observations, cfg: &FitConfig) -> Result<In
             cfg.min_cluster_px
         )));
     }
-    let colors: Vec<[f64; 3]> = covered_px.iter().map(|&p| average[p as usize]).collect();
+    let albedo;
+    let grouped = match cfg.cluster_colour {
+        ClusterColour::Mean => &average,
+        ClusterColour::Albedo => {
+            albedo = obs.albedo_colors();
+            &albedo
+        }
+    };
+    let colors: Vec<[f64; 3]> = covered_px.iter().map(|&p| grouped[p as usize]).collect();
     let init =
         cluster::initial_clusters(&colors, cfg.k_min, cfg.k_max, cfg.kmeans_sample, cfg.seed);
     let mut members: Vec<Vec<u32>> = vec![Vec::new(); init.k];
@@ -432,6 +452,7 @@ pub(crate) fn finish(
         leaves,
         cluster,
         unconverged,
+        reassigned,
         rmse_clusters,
         mut timings,
         ..
@@ -515,6 +536,7 @@ pub(crate) fn finish(
         final_clusters: leaves.len(),
         max_depth: leaves.iter().map(|l| l.depth).max().unwrap_or(0),
         unconverged_clusters: unconverged,
+        reassigned_pixels: reassigned,
         refined: cfg.refine,
         lobe_refits: refits,
         refitted_clusters: lobes.iter().filter(|l| l.is_some()).count(),

@@ -119,6 +119,10 @@ pub struct FitSummary {
     pub max_depth: usize,
     /// Final clusters whose solver stopped at the iteration cap (reported, not fatal).
     pub unconverged_clusters: Vec<u32>,
+    /// Pixels moved to a neighbouring cluster whose BRDF explains them far better
+    /// (`reassign_pixels`; over both passes).
+    #[serde(default)]
+    pub reassigned_pixels: usize,
     /// Whether the per-pixel refinement ran.
     pub refined: bool,
     /// Lobe refits run after the refinement (each after a refinement pass).
