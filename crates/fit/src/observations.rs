@@ -621,6 +621,23 @@ fn transpose(
 /// Exact Ward observations for tests: every pixel of `grid` seen by every frame,
 /// rendered with `params(pixel)` under `intensity`. Channels at or above 0.9 are stored
 /// as clipped, or with `drop_clipped` the observation is left out.
+/// `n` flash frames, frame `i`'s camera at `camera(i)` and its flash beside it as on
+/// the phone description of the presets (tests).
+#[cfg(test)]
+pub(crate) fn flash_frames(n: u32, camera: impl Fn(u32) -> Vec3) -> Vec<FrameGeometry> {
+    (0..n)
+        .map(|i| {
+            let camera = camera(i);
+            FrameGeometry {
+                id: i,
+                camera,
+                light: camera + Vec3::new(1.4, -0.3, 0.0),
+                gain: 1.0,
+            }
+        })
+        .collect()
+}
+
 #[cfg(test)]
 pub(crate) fn rendered(
     grid: PlaneGrid,
@@ -693,17 +710,9 @@ mod tests {
         // colour varies far less (2.5x: where the highlight is in most of a pixel's
         // frames it still sets the median) and is rho_d I / pi in the middle.
         let grid = PlaneGrid::new(svbrdf_core::plane::Region::centred(8.0, 8.0), 5.0).unwrap();
-        let frames: Vec<FrameGeometry> = (0..25u32)
-            .map(|i| {
-                let camera = Vec3::new(-3.0 + 0.5 * f64::from(i % 5), f64::from(i / 5) - 2.0, 9.0);
-                FrameGeometry {
-                    id: i,
-                    camera,
-                    light: camera + Vec3::new(1.4, -0.3, 0.0),
-                    gain: 1.0,
-                }
-            })
-            .collect();
+        let frames = flash_frames(25, |i| {
+            Vec3::new(-3.0 + 0.5 * f64::from(i % 5), f64::from(i / 5) - 2.0, 9.0)
+        });
         let truth = svbrdf_core::brdf::BrdfParams {
             rho_d: [0.3, 0.2, 0.1],
             rho_s: [0.3; 3],

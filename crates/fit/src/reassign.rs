@@ -200,17 +200,9 @@ mod tests {
         // White paint around a 2 x 2 cm gold patch whose left half the clustering left
         // in the paint's cluster; filmed by a flash camera on a 7 x 7 grid.
         let grid = PlaneGrid::new(Region::centred(4.0, 4.0), 10.0).unwrap();
-        let frames: Vec<_> = (0..49u32)
-            .map(|i| {
-                let camera = Vec3::new(f64::from(i % 7) - 3.0, f64::from(i / 7) - 3.0, 10.0);
-                crate::observations::FrameGeometry {
-                    id: i,
-                    camera,
-                    light: camera + Vec3::new(1.4, -0.3, 0.0),
-                    gain: 1.0,
-                }
-            })
-            .collect();
+        let frames = crate::observations::flash_frames(49, |i| {
+            Vec3::new(f64::from(i % 7) - 3.0, f64::from(i / 7) - 3.0, 10.0)
+        });
         let paint = BrdfParams {
             rho_d: [0.45, 0.44, 0.40],
             rho_s: [0.05; 3],

@@ -657,32 +657,13 @@ mod tests {
         assert_eq!(high, vec![14]);
     }
 
-    /// `n` flash frames, frame `i`'s camera at `camera(i)` and its flash beside it as
-    /// on the phone description of the presets.
-    fn flash_frames(
-        n: u32,
-        camera: impl Fn(u32) -> Vec3,
-    ) -> Vec<crate::observations::FrameGeometry> {
-        (0..n)
-            .map(|i| {
-                let camera = camera(i);
-                crate::observations::FrameGeometry {
-                    id: i,
-                    camera,
-                    light: camera + Vec3::new(1.4, -0.3, 0.0),
-                    gain: 1.0,
-                }
-            })
-            .collect()
-    }
-
     /// One shiny material whose pixels' normals are tilted by up to 1.7 degrees,
     /// filmed by a flash camera on a 7 x 7 grid and rendered exactly with Ward (clipped
     /// channels stored as clipped).
     fn tilted_patch(truth: BrdfParams) -> (Observations, Vec<BrdfParams>) {
         use svbrdf_core::plane::{PlaneGrid, Region};
         let grid = PlaneGrid::new(Region::centred(4.0, 4.0), 10.0).unwrap();
-        let frames = flash_frames(49, |i| {
+        let frames = crate::observations::flash_frames(49, |i| {
             Vec3::new((i % 7) as f64 - 3.0, (i / 7) as f64 - 3.0, 10.0)
         });
         let params: Vec<BrdfParams> = (0..grid.len())
@@ -721,7 +702,7 @@ mod tests {
         // A glossy 1 x 1 cm part filmed only from one side, 20-30 degrees off its
         // normal: the flank of a broad lobe shows, the peak of a sharp one never.
         let grid = PlaneGrid::new(Region::centred(1.0, 1.0), 10.0).unwrap();
-        let frames = flash_frames(30, |i| {
+        let frames = crate::observations::flash_frames(30, |i| {
             Vec3::new(4.0 + 0.1 * f64::from(i), 0.2 * f64::from(i % 5), 10.0)
         });
         let truth = BrdfParams {
