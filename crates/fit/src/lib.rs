@@ -16,6 +16,7 @@
 #![allow(clippy::needless_range_loop)]
 
 pub mod cluster;
+mod colours;
 pub mod confidence;
 pub mod config;
 pub mod evaluate;
