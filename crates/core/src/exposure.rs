@@ -450,6 +450,11 @@ struct Model<'a> {
 }
 
 impl Model<'_> {
+    /// Whether each point has a free ambient term `c_p` (not shared, not off).
+    fn per_point(&self) -> bool {
+        self.ambient && !self.shared
+    }
+
     /// Relative residual of sample `s`, the prediction's parts (g, G S) and its value.
     fn residual(&self, x: &Params, s: &ExposureSample) -> (f64, f64, f64, f64) {
         let p = s.point as usize;
@@ -524,7 +529,7 @@ impl Model<'_> {
             let (ja, jc) = if self.shared {
                 js[3] = (nf + nb, -g * x.a[p] * iv);
                 (-g * (gs + x.amb) * iv, 0.0)
-            } else if self.ambient {
+            } else if self.per_point() {
                 (-g * gs * iv, -g * iv)
             } else {
                 (-g * gs * iv, 0.0)
@@ -559,7 +564,7 @@ impl Model<'_> {
             .iter()
             .map(|b| {
                 let d0 = b[0] * (1.0 + lambda) + 1e-12;
-                let d2 = if self.ambient && !self.shared {
+                let d2 = if self.per_point() {
                     b[2] * (1.0 + lambda) + 1e-12
                 } else {
                     1.0
@@ -638,7 +643,7 @@ impl Model<'_> {
             let da = -(iv[0] * v[0] + iv[1] * v[1]);
             let dc = -(iv[1] * v[0] + iv[2] * v[1]);
             next.a[p] = (x.a[p] + da).max(0.0);
-            next.c[p] = if self.ambient && !self.shared {
+            next.c[p] = if self.per_point() {
                 (x.c[p] + dc).max(0.0)
             } else {
                 0.0

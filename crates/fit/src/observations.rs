@@ -542,9 +542,6 @@ fn transpose(
     (start, frame, rgb, key)
 }
 
-/// Exact Ward observations for tests: every pixel of `grid` seen by every frame,
-/// rendered with `params(pixel)` under `intensity`. Channels at or above 0.9 are stored
-/// as clipped, or with `drop_clipped` the observation is left out.
 /// `n` flash frames, frame `i`'s camera at `camera(i)` and its flash beside it as on
 /// the phone description of the presets (tests).
 #[cfg(test)]
@@ -562,6 +559,9 @@ pub(crate) fn flash_frames(n: u32, camera: impl Fn(u32) -> Vec3) -> Vec<FrameGeo
         .collect()
 }
 
+/// Exact Ward observations for tests: every pixel of `grid` seen by every frame,
+/// rendered with `params(pixel)` under `intensity`. Channels at or above 0.9 are stored
+/// as clipped, or with `drop_clipped` the observation is left out.
 #[cfg(test)]
 pub(crate) fn rendered(
     grid: PlaneGrid,

@@ -17,7 +17,6 @@
 use rayon::prelude::*;
 use svbrdf_core::brdf::{BrdfParams, Prepared};
 
-use crate::observations::residual;
 use crate::tree::{Context, Leaf};
 
 /// A pixel moves when another cluster's lobe leaves less than this share of its
@@ -37,15 +36,6 @@ const PROBE_RADII: [isize; 3] = [3, 8, 20];
 /// Passes over the pixels.
 const PASSES: usize = 2;
 
-/// What the step did.
-#[derive(Debug, Clone, Copy, Default, PartialEq)]
-pub struct Moves {
-    /// Pixels that tried other clusters (summed over the passes).
-    pub tried: usize,
-    /// Pixels moved (summed over the passes).
-    pub moved: usize,
-}
-
 /// A cluster's BRDF ready to score pixels with.
 struct Scorer(Prepared);
 
@@ -57,34 +47,22 @@ impl Scorer {
     /// Mean squared error of pixel `px` under this BRDF, over at most
     /// [`SCORED_OBSERVATIONS`] of its observations.
     fn error(&self, ctx: &Context, px: usize) -> f64 {
-        let obs = ctx.obs;
-        let r = obs.range(px);
-        let step = r.len().div_ceil(SCORED_OBSERVATIONS).max(1);
-        let (mut sse, mut n) = (0.0, 0usize);
-        for o in r.step_by(step) {
-            let v = ctx.model.radiance(&self.0, &obs.light_view(px, o), 1.0);
-            let c = obs.color(o);
-            let cl = obs.clipped(o);
-            for k in 0..3 {
-                sse += residual(v[k] * ctx.intensity[k], c[k], cl[k]).powi(2);
-            }
-            n += 1;
+        match crate::tree::pixel_sse(ctx, px, &self.0, SCORED_OBSERVATIONS) {
+            (_, 0) => f64::INFINITY,
+            (sse, n) => sse / (3 * n) as f64,
         }
-        if n == 0 {
-            return f64::INFINITY;
-        }
-        sse / (3 * n) as f64
     }
 }
 
 /// Move pixels between `leaves` (their pixel lists and the per-pixel `cluster` labels
-/// of a `width`-wide grid, `u32::MAX` where unobserved) as the module describes.
+/// of a `width`-wide grid, `u32::MAX` where unobserved) as the module describes; the
+/// number of moves (summed over the passes).
 pub(crate) fn reassign(
     ctx: &Context,
     width: usize,
     leaves: &mut [Leaf],
     cluster: &mut [u32],
-) -> Moves {
+) -> usize {
     let obs = ctx.obs;
     let height = cluster.len() / width.max(1);
     let scorers: Vec<Scorer> = leaves.iter().map(|l| Scorer::new(&l.params)).collect();
@@ -116,7 +94,7 @@ pub(crate) fn reassign(
         })
         .collect();
     let mut err = own;
-    let mut moves = Moves::default();
+    let mut moves = 0;
     let offsets: Vec<(isize, isize)> = PROBE_RADII
         .iter()
         .flat_map(|&r| {
@@ -135,7 +113,7 @@ pub(crate) fn reassign(
         .collect();
     for _ in 0..PASSES {
         let labels: &[u32] = cluster;
-        let decisions: Vec<(usize, u32, f64)> = (0..labels.len())
+        let moved: Vec<(usize, u32, f64)> = (0..labels.len())
             .into_par_iter()
             .with_min_len(256)
             .filter_map(|px| {
@@ -156,26 +134,20 @@ pub(crate) fn reassign(
                         seen.push(q);
                     }
                 }
-                let best = seen
-                    .iter()
+                seen.iter()
                     .map(|&q| (q, scorers[q as usize].error(ctx, px)))
-                    .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)));
-                Some(match best {
-                    Some((q, eq)) if eq < ACCEPT * e => (px, q, eq),
-                    _ => (px, c, e),
-                })
+                    .min_by(|a, b| a.1.total_cmp(&b.1).then(a.0.cmp(&b.0)))
+                    .filter(|&(_, eq)| eq < ACCEPT * e)
+                    .map(|(q, eq)| (px, q, eq))
             })
             .collect();
-        moves.tried += decisions.len();
-        for (px, q, e) in decisions {
-            if q != cluster[px] {
-                cluster[px] = q;
-                err[px] = e;
-                moves.moved += 1;
-            }
+        moves += moved.len();
+        for (px, q, e) in moved {
+            cluster[px] = q;
+            err[px] = e;
         }
     }
-    if moves.moved > 0 {
+    if moves > 0 {
         for l in leaves.iter_mut() {
             l.pixels.clear();
         }
@@ -253,10 +225,10 @@ mod tests {
         for (px, &c) in cluster.iter().enumerate() {
             assert_eq!(c, u32::from(in_gold(px)), "pixel {px}");
         }
-        assert_eq!(moves.moved, 200);
+        assert_eq!(moves, 200);
         assert_eq!(leaves[1].pixels.len(), 400);
         assert_eq!(leaves[0].pixels.len(), obs.pixels() - 400);
         // A second run finds nothing to move.
-        assert_eq!(reassign(&ctx, w, &mut leaves, &mut cluster).moved, 0);
+        assert_eq!(reassign(&ctx, w, &mut leaves, &mut cluster), 0);
     }
 }

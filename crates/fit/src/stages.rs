@@ -125,7 +125,7 @@ pub(crate) fn fit_tree(
 
     let t = Instant::now();
     progress.stage("cluster fits", init.k as u64);
-    let (roots, leaves): (Vec<u32>, Vec<tree::Leaf>) = members
+    let (roots, mut leaves): (Vec<u32>, Vec<tree::Leaf>) = members
         .into_par_iter()
         .enumerate()
         .filter(|(_, m)| !m.is_empty())
@@ -149,12 +149,11 @@ pub(crate) fn fit_tree(
             unconverged.push(i as u32);
         }
     }
-    let mut leaves = leaves;
     let t = Instant::now();
-    let moves = if cfg.reassign_pixels {
+    let reassigned = if cfg.reassign_pixels {
         crate::reassign::reassign(&ctx, obs.grid.width, &mut leaves, &mut cluster)
     } else {
-        crate::reassign::Moves::default()
+        0
     };
     timings.push(("pixels reassigned".to_string(), t.elapsed().as_secs_f64()));
     cluster::fill_unobserved(&obs.grid, &mut cluster, &covered);
@@ -178,7 +177,7 @@ pub(crate) fn fit_tree(
         cluster,
         params,
         unconverged,
-        reassigned: moves.moved,
+        reassigned,
         rmse_clusters,
         timings,
     })

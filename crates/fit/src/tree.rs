@@ -162,26 +162,14 @@ pub fn pixel_errors(ctx: &Context, pixels: &[u32], params: &BrdfParams) -> (Vec<
         .with_min_len(256)
         .map(|&px| {
             let px = px as usize;
-            let mut s = 0.0;
-            let r = obs.range(px);
-            let step = r.len().div_ceil(cap).max(1);
             if ward {
+                let step = obs.range(px).len().div_ceil(cap).max(1);
                 return crate::BATCH.with_borrow_mut(|b| {
                     b.gather(obs, px, step);
                     (b.sse(params, ctx.intensity), b.len())
                 });
             }
-            let mut n = 0;
-            for o in r.step_by(step) {
-                n += 1;
-                let v = ctx.model.radiance(&p, &obs.light_view(px, o), 1.0);
-                let c = obs.color(o);
-                let cl = obs.clipped(o);
-                for k in 0..3 {
-                    s += residual(v[k] * ctx.intensity[k], c[k], cl[k]).powi(2);
-                }
-            }
-            (s, n)
+            pixel_sse(ctx, px, &p, cap)
         })
         .collect();
     let sse = per.iter().map(|e| e.0).sum();
@@ -191,6 +179,25 @@ pub fn pixel_errors(ctx: &Context, pixels: &[u32], params: &BrdfParams) -> (Vec<
         .map(|(s, n)| s / (3 * n.max(1)) as f64)
         .collect();
     (errs, sse, n)
+}
+
+/// Squared error of pixel `px` under `p` (summed over channels) and the number of
+/// observations it is over: at most `cap`, spread evenly over the pixel's frames.
+pub fn pixel_sse(ctx: &Context, px: usize, p: &Prepared, cap: usize) -> (f64, usize) {
+    let obs = ctx.obs;
+    let r = obs.range(px);
+    let step = r.len().div_ceil(cap.max(1)).max(1);
+    let (mut s, mut n) = (0.0, 0);
+    for o in r.step_by(step) {
+        n += 1;
+        let v = ctx.model.radiance(p, &obs.light_view(px, o), 1.0);
+        let c = obs.color(o);
+        let cl = obs.clipped(o);
+        for k in 0..3 {
+            s += residual(v[k] * ctx.intensity[k], c[k], cl[k]).powi(2);
+        }
+    }
+    (s, n)
 }
 
 /// The paper's initial values for a cluster: rho_d the mean colour and rho_s twice the
