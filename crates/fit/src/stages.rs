@@ -125,7 +125,7 @@ pub(crate) fn fit_tree(
 
     let t = Instant::now();
     progress.stage("cluster fits", init.k as u64);
-    let (roots, mut leaves): (Vec<u32>, Vec<tree::Leaf>) = members
+    let (mut roots, mut leaves): (Vec<u32>, Vec<tree::Leaf>) = members
         .into_par_iter()
         .enumerate()
         .filter(|(_, m)| !m.is_empty())
@@ -140,22 +140,23 @@ pub(crate) fn fit_tree(
 
     let mut cluster = vec![u32::MAX; npx];
     let mut params = vec![BrdfParams::default(); npx];
-    let mut unconverged = Vec::new();
     for (i, leaf) in leaves.iter().enumerate() {
         for &p in &leaf.pixels {
             cluster[p as usize] = i as u32;
         }
-        if !leaf.converged {
-            unconverged.push(i as u32);
-        }
     }
     let t = Instant::now();
     let reassigned = if cfg.reassign_pixels {
-        crate::reassign::reassign(&ctx, obs.grid.width, &mut leaves, &mut cluster)
+        let moves = crate::reassign::reassign(&ctx, obs.grid.width, &mut leaves, &mut cluster);
+        crate::reassign::drop_empty(&mut leaves, &mut roots, &mut cluster);
+        moves
     } else {
         0
     };
     timings.push(("pixels reassigned".to_string(), t.elapsed().as_secs_f64()));
+    let unconverged: Vec<u32> = (0..leaves.len() as u32)
+        .filter(|&i| !leaves[i as usize].converged)
+        .collect();
     cluster::fill_unobserved(&obs.grid, &mut cluster, &covered);
     for (p, c) in params.iter_mut().zip(&cluster) {
         *p = leaves[*c as usize].params;
