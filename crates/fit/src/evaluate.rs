@@ -62,6 +62,19 @@ pub struct Accuracy {
     /// errors of the reflectance model (which survive averaging) from pixel-scale
     /// texture and noise (which do not).
     pub relight_relative_rmse_1mm: Vec<f64>,
+    /// One brightness factor for every held-out light (their summed true radiance over
+    /// the summed fitted radiance): where a capture does not fix absolute brightness
+    /// (exposure gains are estimated up to one common factor), the relighting errors
+    /// above carry it, and the two below do not.
+    #[serde(default)]
+    pub relight_brightness_scale: f64,
+    /// `relight_relative_rmse` with the fitted radiance times `relight_brightness_scale`.
+    #[serde(default)]
+    pub relight_relative_rmse_rescaled: Vec<f64>,
+    /// `relight_relative_rmse_1mm` with the fitted radiance times
+    /// `relight_brightness_scale`.
+    #[serde(default)]
+    pub relight_relative_rmse_1mm_rescaled: Vec<f64>,
 }
 
 /// RMS difference of block means, from per-block sums `[ours r g b, truth r g b, n]`.
@@ -156,9 +169,13 @@ pub fn evaluate(
     let mut relight_relative_rmse = Vec::new();
     let mut relight_mean_ratio = Vec::new();
     let mut relight_relative_rmse_1mm = Vec::new();
+    // Per light: mean true radiance, sums of ours^2, ours * truth and truth^2, blocks.
+    let mut per_light: Vec<(f64, [f64; 3], Vec<[f64; 7]>)> = Vec::new();
+    let (mut all_truth, mut all_ours) = (0.0, 0.0);
     for (img, light, camera) in &truth.holdout {
         let ours = relight(grid, params, model, intensity, *light, *camera);
         let (mut se, mut sum, mut sum_ours) = (0.0, 0.0, 0.0);
+        let mut moments = [0.0f64; 3];
         // Per block: sum of ours, sum of truth (per channel), count.
         let mut blocks = vec![[0.0f64; 7]; bw * bh];
         for &(i, q) in &idx {
@@ -167,6 +184,9 @@ pub fn evaluate(
             for c in 0..3 {
                 let o = f64::from(ours.data[3 * i + c]);
                 se += (o - t[c]).powi(2);
+                moments[0] += o * o;
+                moments[1] += o * t[c];
+                moments[2] += t[c] * t[c];
                 sum += t[c];
                 sum_ours += o;
                 blocks[b][c] += o;
@@ -184,6 +204,31 @@ pub fn evaluate(
             relight_mean_ratio.push(0.0);
             relight_relative_rmse_1mm.push(0.0);
         }
+        all_truth += sum;
+        all_ours += sum_ours;
+        per_light.push((mean, moments, blocks));
+    }
+    let g = if all_ours > 0.0 {
+        all_truth / all_ours
+    } else {
+        1.0
+    };
+    let (mut relight_relative_rmse_rescaled, mut relight_relative_rmse_1mm_rescaled) =
+        (Vec::new(), Vec::new());
+    for (mean, [oo, ot, tt], mut blocks) in per_light {
+        if mean <= 0.0 {
+            relight_relative_rmse_rescaled.push(0.0);
+            relight_relative_rmse_1mm_rescaled.push(0.0);
+            continue;
+        }
+        let se = (g * g * oo - 2.0 * g * ot + tt).max(0.0);
+        relight_relative_rmse_rescaled.push((se / (3.0 * n)).sqrt() / mean);
+        for b in &mut blocks {
+            for v in &mut b[..3] {
+                *v *= g;
+            }
+        }
+        relight_relative_rmse_1mm_rescaled.push(block_rmse(&blocks) / mean);
     }
     let relight_relative_rmse_mean =
         relight_relative_rmse.iter().sum::<f64>() / relight_relative_rmse.len().max(1) as f64;
@@ -198,6 +243,9 @@ pub fn evaluate(
         relight_relative_rmse_mean,
         relight_mean_ratio,
         relight_relative_rmse_1mm,
+        relight_brightness_scale: g,
+        relight_relative_rmse_rescaled,
+        relight_relative_rmse_1mm_rescaled,
     }
 }
 
@@ -571,6 +619,32 @@ mod tests {
             (r[1] - 1.0).abs() < 1e-6 && r[0] > 1.2 && r[2] == 0.0,
             "{r:?}"
         );
+    }
+
+    #[test]
+    fn relighting_errors_rescaled_for_brightness_forgive_one_factor_only() {
+        let (truth, params) = halves();
+        let model = ModelKind::Ward;
+        // The right maps under an intensity 1.5 times too high (exposure gains known
+        // only up to one factor): off by at least half, nothing off once rescaled.
+        let a = evaluate(&truth.grid, &params, model.model(), [15.0; 3], &truth);
+        assert!(a.relight_relative_rmse[0] >= 0.5, "{a:?}");
+        assert!((a.relight_brightness_scale - 1.0 / 1.5).abs() < 1e-6);
+        assert!(a.relight_relative_rmse_rescaled[0] < 1e-5, "{a:?}");
+        assert!(a.relight_relative_rmse_1mm_rescaled[0] < 1e-5, "{a:?}");
+        // A wrong lobe stays wrong after rescaling.
+        let dull: Vec<BrdfParams> = params
+            .iter()
+            .map(|p| BrdfParams {
+                rho_s: [0.0; 3],
+                ..*p
+            })
+            .collect();
+        let b = evaluate(&truth.grid, &dull, model.model(), [15.0; 3], &truth);
+        assert!(b.relight_relative_rmse_rescaled[0] > 0.05, "{b:?}");
+        // With the right brightness the rescaled figures equal the plain ones.
+        let c = evaluate(&truth.grid, &dull, model.model(), [10.0; 3], &truth);
+        assert!(c.relight_relative_rmse_rescaled[0] <= c.relight_relative_rmse[0] + 1e-12);
     }
 
     #[test]
