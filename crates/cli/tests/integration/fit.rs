@@ -384,7 +384,7 @@ fn the_diffuse_error_on_tiles_does_not_hang_on_the_clustering_seed() {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let fit = |seed: &str, config: Option<&str>| {
-        let out = dir.join(format!("fit-{seed}-{}", config.is_some()));
+        let out = dir.join(format!("fit-{seed}-{}", config.map_or(0, str::len)));
         let mut args = vec![
             "fit".to_string(),
             "--capture".into(),
@@ -409,11 +409,18 @@ fn the_diffuse_error_on_tiles_does_not_hang_on_the_clustering_seed() {
         errors.iter().all(|e| *e < 0.055),
         "diffuse RMSE per seed {errors:?}"
     );
-    let paper = fit("1", Some(r#"{"split_restart_depth": 0}"#));
+    // The restarts alone, pixel reassignment off in both fits: since session 29 the
+    // reassignment also moves most of the pixels a fit from the parent alone leaves in
+    // the wrong part (from the parent only 0.0310, with restarts 0.0320, both with it).
+    let no_moves = r#"{"reassign_pixels": false}"#;
+    let restarts = fit("1", Some(no_moves));
+    let paper = fit(
+        "1",
+        Some(r#"{"split_restart_depth": 0, "reassign_pixels": false}"#),
+    );
     assert!(
-        paper > 1.2 * errors[0],
-        "from the parent only: {paper}, with restarts {}",
-        errors[0]
+        paper > 1.2 * restarts,
+        "from the parent only: {paper}, with restarts {restarts}"
     );
 }
 
