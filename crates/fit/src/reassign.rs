@@ -133,6 +133,8 @@ pub(crate) fn reassign(
     let mut err = own;
     let mut moves = 0;
     let mut changed = vec![false; leaves.len()];
+    let min = ctx.cfg.min_cluster_px;
+    let mut size: Vec<usize> = leaves.iter().map(|l| l.pixels.len()).collect();
     let offsets: Vec<(isize, isize)> = PROBE_RADII
         .iter()
         .flat_map(|&r| {
@@ -183,9 +185,17 @@ pub(crate) fn reassign(
                     .map(|(q, eq)| (px, q, eq))
             })
             .collect();
-        moves += moved.len();
         for (px, q, e) in moved {
-            changed[cluster[px] as usize] = true;
+            // A cluster keeps at least `min_cluster_px` pixels, as the tree's splits
+            // do: fewer would fit a lobe to a handful of pixels in the lobe refit.
+            let c = cluster[px] as usize;
+            if size[c] <= min {
+                continue;
+            }
+            size[c] -= 1;
+            size[q as usize] += 1;
+            moves += 1;
+            changed[c] = true;
             changed[q as usize] = true;
             cluster[px] = q;
             err[px] = e;
