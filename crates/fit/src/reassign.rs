@@ -27,7 +27,7 @@ pub const ACCEPT: f64 = 0.5;
 /// median pixel error. Not only the outliers: in a cluster that mixes materials the
 /// median itself is high, and the glossy pixels left in a matte cluster lie near it
 /// (drifting hard-small patchwork 1: their median 1.5 times the cluster's, 6% over 3
-/// times). Session 29 (docs/BENCHMARKS.md): 3 -> 0.5 lowered the diffuse error on 11
+/// times). Session 29 (docs/BENCHMARKS.md): 3 -> 0.5 lowered the diffuse error on 12
 /// of 12 hard-small captures, that blotch's capture 0.047 -> 0.033.
 pub const TRY_ABOVE: f64 = 0.5;
 
@@ -187,7 +187,8 @@ pub(crate) fn reassign(
             .collect();
         for (px, q, e) in moved {
             // A cluster keeps at least `min_cluster_px` pixels, as the tree's splits
-            // do: fewer would fit a lobe to a handful of pixels in the lobe refit.
+            // do: fewer would fit a lobe to a handful of pixels in the lobe refit (and
+            // none is ever emptied).
             let c = cluster[px] as usize;
             if size[c] <= min {
                 continue;
@@ -219,38 +220,6 @@ pub(crate) fn reassign(
         }
     }
     moves
-}
-
-/// Drop the clusters that reassignment emptied, renumbering the rest in order: the
-/// per-pixel labels in `cluster` and the parallel per-cluster `roots` follow. The
-/// number of clusters dropped.
-pub(crate) fn drop_empty(
-    leaves: &mut Vec<Leaf>,
-    roots: &mut Vec<u32>,
-    cluster: &mut [u32],
-) -> usize {
-    let mut new_id = vec![u32::MAX; leaves.len()];
-    let mut next = 0u32;
-    for (i, l) in leaves.iter().enumerate() {
-        if !l.pixels.is_empty() {
-            new_id[i] = next;
-            next += 1;
-        }
-    }
-    let dropped = leaves.len() - next as usize;
-    if dropped == 0 {
-        return 0;
-    }
-    for c in cluster.iter_mut() {
-        if *c != u32::MAX {
-            *c = new_id[*c as usize];
-        }
-    }
-    let mut keep = new_id.iter().map(|&n| n != u32::MAX);
-    leaves.retain(|_| keep.next().unwrap_or(false));
-    let mut keep = new_id.iter().map(|&n| n != u32::MAX);
-    roots.retain(|_| keep.next().unwrap_or(false));
-    dropped
 }
 
 #[cfg(test)]
@@ -327,31 +296,5 @@ mod tests {
         assert!(leaves[1].observations > 0);
         // A second run finds nothing to move.
         assert_eq!(reassign(&ctx, w, &mut leaves, &mut cluster), 0);
-    }
-
-    #[test]
-    fn emptied_clusters_are_dropped_and_the_rest_renumbered() {
-        let leaf = |pixels: Vec<u32>, depth: usize| Leaf {
-            pixels,
-            params: BrdfParams::default(),
-            depth,
-            sse: 0.0,
-            observations: 0,
-            converged: true,
-            lobe_from_parent: false,
-        };
-        let mut leaves = vec![leaf(vec![0, 1], 1), leaf(vec![], 2), leaf(vec![2], 3)];
-        let mut roots = vec![5, 6, 7];
-        let mut cluster = vec![0, 0, 2, u32::MAX];
-        assert_eq!(drop_empty(&mut leaves, &mut roots, &mut cluster), 1);
-        assert_eq!(cluster, vec![0, 0, 1, u32::MAX]);
-        assert_eq!(roots, vec![5, 7]);
-        assert_eq!(
-            leaves.iter().map(|l| l.depth).collect::<Vec<_>>(),
-            vec![1, 3]
-        );
-        // Nothing empty: nothing changes.
-        assert_eq!(drop_empty(&mut leaves, &mut roots, &mut cluster), 0);
-        assert_eq!(cluster, vec![0, 0, 1, u32::MAX]);
     }
 }

@@ -125,7 +125,7 @@ pub(crate) fn fit_tree(
 
     let t = Instant::now();
     progress.stage("cluster fits", init.k as u64);
-    let (mut roots, mut leaves): (Vec<u32>, Vec<tree::Leaf>) = members
+    let (roots, mut leaves): (Vec<u32>, Vec<tree::Leaf>) = members
         .into_par_iter()
         .enumerate()
         .filter(|(_, m)| !m.is_empty())
@@ -147,9 +147,7 @@ pub(crate) fn fit_tree(
     }
     let t = Instant::now();
     let reassigned = if cfg.reassign_pixels {
-        let moves = crate::reassign::reassign(&ctx, obs.grid.width, &mut leaves, &mut cluster);
-        crate::reassign::drop_empty(&mut leaves, &mut roots, &mut cluster);
-        moves
+        crate::reassign::reassign(&ctx, obs.grid.width, &mut leaves, &mut cluster)
     } else {
         0
     };
