@@ -79,6 +79,12 @@ pub struct AlignConfig {
     /// (`partial`).
     #[serde(default = "default_true")]
     pub marker_corners: bool,
+    /// Measure the relief shift (texture that appears moved towards the flash on a
+    /// material with relief) with a rigid camera model, correct the texture
+    /// correspondences by it and solve again where it explains at least
+    /// [`MIN_GAIN`](crate::relief::MIN_GAIN) of that model's residual (`relief`).
+    #[serde(default = "default_true")]
+    pub relief: bool,
     /// The check of every kept frame against the reference photo after the solve.
     #[serde(default)]
     pub self_check: crate::selfcheck::SelfCheckConfig,
@@ -159,6 +165,7 @@ impl Default for AlignConfig {
             match_reference: true,
             plane_ties: true,
             marker_corners: true,
+            relief: true,
             self_check: crate::selfcheck::SelfCheckConfig::default(),
             reference_weight: 1.0,
             overlap_weight: 4.0,

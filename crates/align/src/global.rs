@@ -353,6 +353,7 @@ impl Matched {
             marker_hunt: None,
             plane_ties: None,
             marker_corners: None,
+            relief: None,
             plane_tied: Default::default(),
         })
     }

@@ -32,6 +32,7 @@ mod patch;
 pub mod pose;
 pub mod recheck;
 pub mod reference;
+pub mod relief;
 pub mod selfcheck;
 pub mod solve;
 mod subframes;
@@ -233,6 +234,9 @@ pub struct AlignSummary {
     /// found where the solved maps put them, where they ran.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub marker_corners: Option<partial::MarkerCornerSummary>,
+    /// The relief shift measured with a rigid camera model, where it ran (`relief`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub relief: Option<relief::ReliefSummary>,
 }
 
 /// What a video's stream says about its colours and what decoding did with it.
@@ -586,6 +590,25 @@ fn register_and_write(
         if summary.frames_tried > 0 {
             result.marker_corners = Some(summary);
         }
+    }
+    if cfg.relief {
+        let (summary, curve) = relief::estimate(&matched, &result, cfg.reference_weight)?;
+        if summary.applied {
+            relief::correct(&mut matched, &result, &curve);
+            let marker_hunt = result.marker_hunt.take();
+            let marker_corners = result.marker_corners.take();
+            result = matched.solve(
+                &Default::default(),
+                cfg,
+                progress,
+                &mut |n| timer.lap(n),
+                trace,
+            )?;
+            result.marker_hunt = marker_hunt;
+            result.marker_corners = marker_corners;
+        }
+        result.relief = Some(summary);
+        timer.lap("relief shift");
     }
     let sweep_cm = check_baseline(&result, &inputs.reference)?;
     trace.sweep_cm = Some(sweep_cm);

@@ -90,6 +90,8 @@ pub struct Registration {
     pub plane_ties: Option<crate::ties::PlaneTieSummary>,
     /// What the marker corners did, where they ran (set by the caller).
     pub marker_corners: Option<crate::partial::MarkerCornerSummary>,
+    /// What the relief step found, where it ran (set by the caller).
+    pub relief: Option<crate::relief::ReliefSummary>,
 }
 
 /// Frames matched and anchored, ready for the global solve: what

@@ -622,6 +622,7 @@ pub fn write(
         marker_hunt: reg.marker_hunt.clone(),
         plane_ties: reg.plane_ties.clone(),
         marker_corners: reg.marker_corners.clone(),
+        relief: reg.relief.clone(),
     };
     #[derive(serde::Serialize)]
     struct Record<'a> {

@@ -358,6 +358,7 @@ pub(crate) fn tie_to_plane(
         let mut again = matched.solve(all, cfg, progress, lap, trace)?;
         again.marker_hunt = result.marker_hunt.take();
         again.marker_corners = result.marker_corners.take();
+        again.relief = result.relief.take();
         *result = again;
         *checks = self_check(result, ref_img, reference, region)?;
         lap("self-check");

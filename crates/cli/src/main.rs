@@ -190,6 +190,10 @@ struct AlignArgs {
     /// the frame's edge, or blurred) where the frame's map puts them (a diagnostic)
     #[arg(long)]
     no_marker_corners: bool,
+    /// Do not measure or correct the relief shift (the texture of a material with
+    /// relief appears moved towards the flash; a diagnostic)
+    #[arg(long)]
+    no_relief: bool,
     #[command(flatten)]
     second: SecondArgs,
     /// Replace the output folder if it exists.
@@ -263,6 +267,9 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
     }
     if a.no_marker_corners {
         c.marker_corners = false;
+    }
+    if a.no_relief {
+        c.relief = false;
     }
     if a.no_plane_ties {
         c.plane_ties = false;
@@ -424,6 +431,9 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     }
     if let Some(m) = &s.marker_corners {
         say!("{}", m.describe());
+    }
+    if let Some(r) = &s.relief {
+        say!("{}", r.describe());
     }
     if let Some(line) = s.support.describe() {
         say!("support: {line}");

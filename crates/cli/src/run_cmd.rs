@@ -332,6 +332,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         no_reference_matches: false,
         no_plane_ties: false,
         no_marker_corners: false,
+        no_relief: false,
         second: a.second.clone(),
         overwrite: true,
     };
