@@ -401,7 +401,7 @@ pub(crate) fn estimate(
     let mut n = 0usize;
     let mut take = || {
         n += 1;
-        (n - 1) % stride == 0
+        (n - 1).is_multiple_of(stride)
     };
     for (i, j, r) in &matched.fine {
         let Some((a, b, _)) = r else { continue };
