@@ -593,6 +593,7 @@ fn register_and_write(
     }
     if cfg.relief {
         let (summary, curve) = relief::estimate(&matched, &result, cfg.reference_weight)?;
+        timer.lap("relief shift");
         if summary.applied {
             relief::correct(&mut matched, &result, &curve);
             let marker_hunt = result.marker_hunt.take();
@@ -608,7 +609,6 @@ fn register_and_write(
             result.marker_corners = marker_corners;
         }
         result.relief = Some(summary);
-        timer.lap("relief shift");
     }
     let sweep_cm = check_baseline(&result, &inputs.reference)?;
     trace.sweep_cm = Some(sweep_cm);
