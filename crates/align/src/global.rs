@@ -16,6 +16,24 @@ use crate::trace::{AlignTrace, Fate};
 use crate::{AlignError, Progress};
 
 impl Matched {
+    /// [`solve`](Self::solve) again (with more anchors or corrected correspondences),
+    /// carrying over what the steps after the first solve recorded in `previous`.
+    pub(crate) fn solve_again(
+        &self,
+        ties: &PlaneTies,
+        previous: &mut Registration,
+        cfg: &AlignConfig,
+        progress: &dyn Progress,
+        lap: &mut dyn FnMut(&str),
+        trace: &mut AlignTrace,
+    ) -> Result<Registration, AlignError> {
+        let mut again = self.solve(ties, cfg, progress, lap, trace)?;
+        again.marker_hunt = previous.marker_hunt.take();
+        again.marker_corners = previous.marker_corners.take();
+        again.relief = previous.relief.take();
+        Ok(again)
+    }
+
     /// Solve for every registered frame's sub-frame maps, with `ties` as extra
     /// anchors, and keep the frames whose maps are supported and whose pose is
     /// plausible.

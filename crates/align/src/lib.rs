@@ -576,14 +576,15 @@ fn register_and_write(
             for (i, a) in &found {
                 matched.marker_anchors[*i].extend(a.iter().copied());
             }
-            result = matched.solve(
+            result.marker_hunt = trace.marker_hunt.clone();
+            result = matched.solve_again(
                 &Default::default(),
+                &mut result,
                 cfg,
                 progress,
                 &mut |n| timer.lap(n),
                 trace,
             )?;
-            result.marker_hunt = trace.marker_hunt.clone();
             summary.residual_px = partial::residuals(&matched.frames, &found, &result)?;
             timer.lap("marker corners");
         }
@@ -596,17 +597,14 @@ fn register_and_write(
         timer.lap("relief shift");
         if summary.applied {
             relief::correct(&mut matched, &result, &curve);
-            let marker_hunt = result.marker_hunt.take();
-            let marker_corners = result.marker_corners.take();
-            result = matched.solve(
+            result = matched.solve_again(
                 &Default::default(),
+                &mut result,
                 cfg,
                 progress,
                 &mut |n| timer.lap(n),
                 trace,
             )?;
-            result.marker_hunt = marker_hunt;
-            result.marker_corners = marker_corners;
         }
         result.relief = Some(summary);
     }

@@ -340,6 +340,17 @@ fn fit(
     Ok((a, cost, wsum))
 }
 
+/// Kept flash frames of a registration by (stream, frame number): their index in it.
+fn kept_flash_frames(result: &Registration) -> HashMap<(u32, u64), usize> {
+    result
+        .frames
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.stream == 0)
+        .map(|(k, f)| ((f.stream, f.index), k))
+        .collect()
+}
+
 /// Fit the rigid model to the correspondences of the flash frames that `result`
 /// kept, with `result`'s maps and lights for each point's light tangent; the summary
 /// says whether to apply the curve returned (cm at each knot; zero, with a `note`,
@@ -353,13 +364,7 @@ pub(crate) fn estimate(
         knots_t: KNOTS.to_vec(),
         ..Default::default()
     };
-    let kept: HashMap<(u32, u64), usize> = result
-        .frames
-        .iter()
-        .enumerate()
-        .filter(|(_, f)| f.stream == 0)
-        .map(|(k, f)| ((f.stream, f.index), k))
-        .collect();
+    let kept = kept_flash_frames(result);
     // Matched frame -> (slot in the model, kept frame).
     let mut slots: HashMap<usize, (usize, usize)> = HashMap::new();
     for (i, f) in matched.frames.iter().enumerate() {
@@ -518,13 +523,7 @@ fn solve_model(
 /// frames and with the reference photo) by the curve's shift, to where the plane
 /// point it shows lies under `result`'s maps. Marker corners stay.
 pub(crate) fn correct(matched: &mut Matched, result: &Registration, curve_cm: &[f64; K]) {
-    let kept: HashMap<(u32, u64), usize> = result
-        .frames
-        .iter()
-        .enumerate()
-        .filter(|(_, f)| f.stream == 0)
-        .map(|(k, f)| ((f.stream, f.index), k))
-        .collect();
+    let kept = kept_flash_frames(result);
     let of: Vec<Option<usize>> = matched
         .frames
         .iter()

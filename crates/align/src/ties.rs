@@ -355,11 +355,7 @@ pub(crate) fn tie_to_plane(
                            checks: &mut Vec<FrameCheck>,
                            lap: &mut dyn FnMut(&str)|
      -> Result<(), AlignError> {
-        let mut again = matched.solve(all, cfg, progress, lap, trace)?;
-        again.marker_hunt = result.marker_hunt.take();
-        again.marker_corners = result.marker_corners.take();
-        again.relief = result.relief.take();
-        *result = again;
+        *result = matched.solve_again(all, result, cfg, progress, lap, trace)?;
         *checks = self_check(result, ref_img, reference, region)?;
         lap("self-check");
         Ok(())
