@@ -684,6 +684,13 @@ fn register_and_write(
             100.0 * covered
         ));
     }
+    if let Some(d) = result
+        .relief
+        .as_ref()
+        .and_then(relief::ReliefSummary::doubt)
+    {
+        warnings.push(d);
+    }
     if sweep_cm < 3.0 * MIN_SWEEP_CM {
         warnings.push(format!(
             "the camera swept only {sweep_cm:.1} cm: light directions are few, so the specular lobe is poorly constrained (expected a sweep across the whole surface)"

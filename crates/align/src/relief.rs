@@ -77,6 +77,20 @@ pub struct ReliefSummary {
 }
 
 impl ReliefSummary {
+    /// A doubt for `summary.warnings`: the texture moves with the flash by more than
+    /// the threshold's share, and too few marker corners let it be corrected.
+    pub fn doubt(&self) -> Option<String> {
+        (!self.applied && self.note.is_some() && self.gain >= MIN_GAIN).then(|| {
+            format!(
+                "the texture appears to move with the flash (relief shading: the shift explains {:.1}% of a rigid model's residual), but the kept frames show only {} marker corners, too few to correct it; the maps may lie tens of micrometres off (about a pixel at 4K), most towards the frames' edges. Film with the markers in view more often",
+                100.0 * self.gain,
+                self.marker_corners
+            )
+        })
+    }
+}
+
+impl ReliefSummary {
     /// One line for the summary.
     pub fn describe(&self) -> String {
         let peak =
@@ -89,7 +103,10 @@ impl ReliefSummary {
             self.frames, self.marker_corners
         );
         match (&self.note, self.applied) {
-            (Some(n), _) => format!("{head}; not measured: {n}"),
+            (Some(n), _) => format!(
+                "{head}; the shift explains {:.2}% of the rigid model's residual; {n}",
+                100.0 * self.gain
+            ),
             (None, true) => format!(
                 "{head}; texture seen up to {:.0} um towards the flash (explains {:.1}% of the rigid model's residual); correspondences corrected and solved again",
                 peak,
@@ -437,11 +454,8 @@ pub(crate) fn estimate(
         }
     }
     summary.constraints = obs.len();
-    if slots.len() < 3 || summary.marker_corners < MIN_MARKER_CORNERS {
-        summary.note = Some(format!(
-            "{} marker corners in the kept flash frames (at least {MIN_MARKER_CORNERS} needed to tell a relief shift from a change of scale)",
-            summary.marker_corners
-        ));
+    if slots.len() < 3 {
+        summary.note = Some(format!("{} kept flash frames: not measured", slots.len()));
         return Ok((summary, [0.0; K]));
     }
     // Start: each frame's map over a 9 x 9 grid, fitted by one homography on the
@@ -468,6 +482,15 @@ pub(crate) fn estimate(
     }
     let huber = 2.0 * matched.cm_per_px;
     let curve = solve_model(frames, &obs, huber, &mut summary)?;
+    if summary.marker_corners < MIN_MARKER_CORNERS {
+        // The curve's shape still shows (its share of the cost), its size does not.
+        summary.applied = false;
+        summary.note = Some(format!(
+            "{} marker corners in the kept flash frames, at least {MIN_MARKER_CORNERS} needed to tell a relief shift from a change of scale: not corrected",
+            summary.marker_corners
+        ));
+        return Ok((summary, [0.0; K]));
+    }
     Ok((summary, curve))
 }
 
@@ -718,6 +741,30 @@ mod tests {
             );
         }
         assert!(summary.gain > 0.5 && summary.applied, "{summary:?}");
+    }
+
+    #[test]
+    fn a_shift_too_few_markers_can_correct_is_a_doubt_and_only_then() {
+        let seen = ReliefSummary {
+            gain: 0.027,
+            marker_corners: 4,
+            note: Some("4 marker corners".into()),
+            ..Default::default()
+        };
+        assert!(seen.doubt().is_some_and(|d| d.contains("4 marker corners")));
+        // Too small a share, or corrected: no doubt.
+        let small = ReliefSummary {
+            gain: 0.005,
+            ..seen.clone()
+        };
+        assert!(small.doubt().is_none());
+        let corrected = ReliefSummary {
+            applied: true,
+            note: None,
+            marker_corners: 24,
+            ..seen
+        };
+        assert!(corrected.doubt().is_none());
     }
 
     #[test]

@@ -330,6 +330,11 @@ fn hard_small_tiles_align_within_the_issue_18_bounds() {
         "{}",
         s["relief"]
     );
+    assert!(
+        !s["warnings"].to_string().contains("move with the flash"),
+        "{}",
+        s["warnings"]
+    );
     let checks = s["self_check"].as_array().unwrap();
     assert!(!checks.is_empty());
     assert!(
