@@ -154,12 +154,20 @@ fn light_geometry(light: Vec3, y: Vec2) -> (f64, Vec2) {
     (rho / light.z, d / rho)
 }
 
+/// How the shift at `y` under `light` depends on each knot's value: the unit vector
+/// towards the light's foot weighted by the knot's hat function.
+fn directions(light: Vec3, y: Vec2) -> [Vec2; K] {
+    let (t, u) = light_geometry(light, y);
+    basis(t).map(|b| u * b)
+}
+
 /// The shift of the texture at `y` under `light` for a curve (cm on the plane).
 pub(crate) fn shift_at(curve_cm: &[f64; K], light: Vec3, y: Vec2) -> Vec2 {
-    let (t, u) = light_geometry(light, y);
-    let b = basis(t);
-    let s: f64 = (0..K).map(|k| b[k] * curve_cm[k]).sum();
-    u * s
+    directions(light, y)
+        .iter()
+        .zip(curve_cm)
+        .map(|(d, c)| d * *c)
+        .sum()
 }
 
 /// The plane point a frame's piecewise map puts pixel `p` at, with the map's 2x2
@@ -329,7 +337,7 @@ fn fit(
                 lambda * (a[(i, i)] + 1e-9 * scale)
             };
         }
-        let Some(chol) = a.clone().cholesky() else {
+        let Some(chol) = a.cholesky() else {
             lambda *= 10.0;
             continue;
         };
@@ -394,17 +402,14 @@ pub(crate) fn estimate(
     let side = |i: usize, p: Vec2, texture: bool| -> Option<Side> {
         let &(slot, k) = slots.get(&i)?;
         let (y, _) = map_at(&result.mappings[k], p)?;
-        let mut dir = [Vec2::zeros(); K];
-        if texture {
-            let (t, u) = light_geometry(result.lights[k], y);
-            let b = basis(t);
-            for j in 0..K {
-                dir[j] = u * b[j];
-            }
-        }
+        let dir = if texture {
+            directions(result.lights[k], y)
+        } else {
+            [Vec2::zeros(); K]
+        };
         Some(Side {
             slot,
-            xn: Vec2::new((p.x - kin.cx) / kin.fx, (p.y - kin.cy) / kin.fy),
+            xn: kin.pixel_to_normalized(p),
             dir,
         })
     };
@@ -471,7 +476,7 @@ pub(crate) fn estimate(
                     (0.02 + 0.96 * f64::from(gy) / 8.0) * f64::from(f.height),
                 );
                 if let Some((y, _)) = map_at(&result.mappings[k], p) {
-                    src.push(Vec2::new((p.x - kin.cx) / kin.fx, (p.y - kin.cy) / kin.fy));
+                    src.push(kin.pixel_to_normalized(p));
                     dst.push(y);
                 }
             }
@@ -673,14 +678,11 @@ mod tests {
                 x
             };
             let xn = cams[f].pixel(shown)?;
-            let mut dir = [Vec2::zeros(); K];
-            if texture {
-                let (t, u) = light_geometry(light, x);
-                let b = basis(t);
-                for k in 0..K {
-                    dir[k] = u * b[k];
-                }
-            }
+            let dir = if texture {
+                directions(light, x)
+            } else {
+                [Vec2::zeros(); K]
+            };
             Some((Side { slot: f, xn, dir }, shown))
         };
         let mut obs = Vec::new();
