@@ -315,9 +315,7 @@ fn a_sweep_that_never_passes_over_the_edges_leaves_their_gloss_unmeasured() {
     let unseen = m["summary"]["confidence"]["specular_unseen"]
         .as_f64()
         .unwrap();
-    // Session 31, same code as session 30's green run, on a freshly set-up machine: 0.22
-    // (edges 0.42, centre 0.09), so the bounds are 0.2 and 0.35; not explained.
-    assert!(unseen > 0.2, "{}", m["summary"]["confidence"]);
+    assert!(unseen > 0.25, "{}", m["summary"]["confidence"]);
     // Per cluster: the shares of its pixels by specular confidence add up to 1.
     let clusters: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("clusters.json")).unwrap()).unwrap();
@@ -360,7 +358,7 @@ fn a_sweep_that_never_passes_over_the_edges_leaves_their_gloss_unmeasured() {
     // edges at 0.50 (not above it; centre 0.05): the bound on the edges is 0.45, the contrast
     // with the centre (over 3x) is what the test is about.
     assert!(
-        centre < 0.25 && edge > 0.35 && edge > 3.0 * centre,
+        centre < 0.25 && edge > 0.45 && edge > 3.0 * centre,
         "highlight never seen: centre {centre:.2}, edges {edge:.2}"
     );
 }
