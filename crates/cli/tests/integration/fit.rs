@@ -290,8 +290,10 @@ fn a_sweep_that_never_passes_over_the_edges_leaves_their_gloss_unmeasured() {
         "tiny",
         "--material",
         "tiles",
+        // 0.2: at 0.25, on session 31's freshly set-up machine, only 22% of the surface
+        // went unseen (under the fit's 25% warning; session 30's machine: over it).
         "--reach",
-        "0.25",
+        "0.2",
         "--out",
         cap.to_str().unwrap(),
     ]);
