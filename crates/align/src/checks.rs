@@ -143,11 +143,13 @@ pub(crate) fn coverage(
 }
 
 /// Drop the frames the self-check found inconsistent with the reference photo, or
-/// refuse the capture when too many are.
+/// refuse the capture when too many are; warn about frames off in parts (at the output
+/// sampling `px_per_cm`).
 pub(crate) fn apply_self_check(
     reg: &mut matching::Registration,
     checks: &[selfcheck::FrameCheck],
     cfg: &selfcheck::SelfCheckConfig,
+    px_per_cm: f64,
     warnings: &mut Vec<String>,
     trace: &mut trace::AlignTrace,
 ) -> Result<(), AlignError> {
@@ -165,6 +167,9 @@ pub(crate) fn apply_self_check(
             checked.len(),
             checks.len()
         ));
+    }
+    if let Some(w) = selfcheck::edge_disagreement(checks, cfg.max_shift_mm, px_per_cm) {
+        warnings.push(w);
     }
     let Some(what) = selfcheck::disagreement(checks, cfg.max_shift_mm) else {
         return Ok(());

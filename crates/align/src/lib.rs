@@ -633,7 +633,15 @@ fn register_and_write(
         for f in &mut result.frames {
             f.grey = None;
         }
-        apply_self_check(&mut result, &checks, &cfg.self_check, &mut warnings, trace)?;
+        let px = output::px_per_cm(&result, cfg);
+        apply_self_check(
+            &mut result,
+            &checks,
+            &cfg.self_check,
+            px,
+            &mut warnings,
+            trace,
+        )?;
         checks::require_confirmation(&result, &checks)?;
         checks
     } else {

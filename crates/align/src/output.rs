@@ -364,6 +364,24 @@ fn gain_plot(curve: &ExposureCurve) -> ImageF32 {
     img
 }
 
+/// The output resolution, pixels per cm: `cfg.px_per_cm`, or by default half of the
+/// flash frames' median sampling density on the plane (1 where no flash frame is kept).
+pub(crate) fn px_per_cm(reg: &Registration, cfg: &AlignConfig) -> f64 {
+    let mut heights: Vec<f64> = reg
+        .poses
+        .iter()
+        .zip(&reg.frames)
+        .filter(|(_, f)| f.stream == 0)
+        .map(|(p, _)| p.centre.z)
+        .collect();
+    heights.sort_by(f64::total_cmp);
+    cfg.px_per_cm.unwrap_or_else(|| {
+        heights
+            .get(heights.len() / 2)
+            .map_or(1.0, |h| (0.5 * reg.intrinsics.fx / h).max(1.0).round())
+    })
+}
+
 /// Write everything into `out` (atomically).
 #[allow(clippy::too_many_arguments)]
 pub fn write(
@@ -386,19 +404,7 @@ pub fn write(
     let staging = StagingDir::new(out, overwrite, &inputs.paths())?;
     let dir = staging.path();
     let region = cfg.region.unwrap_or_else(|| rf.marker_region());
-    // Default resolution: half of the frames' median sampling density on the plane.
-    let mut heights: Vec<f64> = reg
-        .poses
-        .iter()
-        .zip(&reg.frames)
-        .filter(|(_, f)| f.stream == 0)
-        .map(|(p, _)| p.centre.z)
-        .collect();
-    heights.sort_by(f64::total_cmp);
-    let median_h = heights[heights.len() / 2];
-    let px_per_cm = cfg
-        .px_per_cm
-        .unwrap_or_else(|| (0.5 * reg.intrinsics.fx / median_h).max(1.0).round());
+    let px_per_cm = px_per_cm(&reg, cfg);
 
     let (kind, input) = match (&inputs.video, &inputs.photos) {
         (Some(v), _) => (SourceKind::Video, v.clone()),
