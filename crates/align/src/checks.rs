@@ -144,15 +144,16 @@ pub(crate) fn coverage(
 
 /// Drop the frames the self-check found inconsistent with the reference photo, or
 /// refuse the capture when too many are; warn about frames off in parts (at the output
-/// sampling `px_per_cm`).
+/// resolution).
 pub(crate) fn apply_self_check(
     reg: &mut matching::Registration,
     checks: &[selfcheck::FrameCheck],
-    cfg: &selfcheck::SelfCheckConfig,
-    px_per_cm: f64,
+    align_cfg: &crate::AlignConfig,
     warnings: &mut Vec<String>,
     trace: &mut trace::AlignTrace,
 ) -> Result<(), AlignError> {
+    let cfg = &align_cfg.self_check;
+    let px_per_cm = crate::output::px_per_cm(reg, align_cfg);
     let checked: Vec<&selfcheck::FrameCheck> =
         checks.iter().filter(|c| c.offset_mm().is_some()).collect();
     let bad: Vec<&selfcheck::FrameCheck> = checked

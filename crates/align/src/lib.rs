@@ -633,15 +633,7 @@ fn register_and_write(
         for f in &mut result.frames {
             f.grey = None;
         }
-        let px = output::px_per_cm(&result, cfg);
-        apply_self_check(
-            &mut result,
-            &checks,
-            &cfg.self_check,
-            px,
-            &mut warnings,
-            trace,
-        )?;
+        apply_self_check(&mut result, &checks, cfg, &mut warnings, trace)?;
         checks::require_confirmation(&result, &checks)?;
         checks
     } else {

@@ -367,15 +367,15 @@ fn gain_plot(curve: &ExposureCurve) -> ImageF32 {
 /// The output resolution, pixels per cm: `cfg.px_per_cm`, or by default half of the
 /// flash frames' median sampling density on the plane (1 where no flash frame is kept).
 pub(crate) fn px_per_cm(reg: &Registration, cfg: &AlignConfig) -> f64 {
-    let mut heights: Vec<f64> = reg
-        .poses
-        .iter()
-        .zip(&reg.frames)
-        .filter(|(_, f)| f.stream == 0)
-        .map(|(p, _)| p.centre.z)
-        .collect();
-    heights.sort_by(f64::total_cmp);
     cfg.px_per_cm.unwrap_or_else(|| {
+        let mut heights: Vec<f64> = reg
+            .poses
+            .iter()
+            .zip(&reg.frames)
+            .filter(|(_, f)| f.stream == 0)
+            .map(|(p, _)| p.centre.z)
+            .collect();
+        heights.sort_by(f64::total_cmp);
         heights
             .get(heights.len() / 2)
             .map_or(1.0, |h| (0.5 * reg.intrinsics.fx / h).max(1.0).round())
