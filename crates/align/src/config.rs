@@ -61,6 +61,11 @@ pub struct AlignConfig {
     pub fine_features: usize,
     /// Fine homography inlier distance at 3840 px (paper: 60).
     pub fine_inlier_px: f64,
+    /// Refined correspondences (patch method) farther than this from one homography
+    /// fitted to a pair's refined matches are dropped, pixels at 3840 px (ours; the
+    /// coarse `fine_inlier_px` admits matches one period off on repetitive texture).
+    #[serde(default = "default_fine_recheck_px")]
+    pub fine_recheck_px: f64,
     /// Minimum fine inliers for a pair (paper: 60).
     pub fine_min_inliers: usize,
     /// Sub-frame grid (columns, rows); default scales the paper's 5 x 11 at 2160 x 3840.
@@ -159,6 +164,7 @@ impl Default for AlignConfig {
             fine_long_side: 3840,
             fine_features: 12000,
             fine_inlier_px: 60.0,
+            fine_recheck_px: default_fine_recheck_px(),
             fine_min_inliers: 60,
             subframes: None,
             sift_contrast: 0.02,
@@ -189,6 +195,12 @@ impl Default for AlignConfig {
 
 fn default_max_noise_gain() -> f64 {
     4.0
+}
+
+/// 8 px at 3840 (2 px at 960): on Mitsuba-rendered tiles it keeps 96% of the right
+/// refined matches and drops 78% of those over 2 output px off.
+fn default_fine_recheck_px() -> f64 {
+    8.0
 }
 
 fn default_true() -> bool {
@@ -261,6 +273,13 @@ impl AlignConfig {
                 ));
             }
         }
+        if !(self.fine_recheck_px > 0.0 && self.fine_recheck_px.is_finite()) {
+            return Err(AlignError::invalid(
+                "fine recheck distance",
+                self.fine_recheck_px,
+                "pixels at 3840 px, > 0 (a large value turns the check off)",
+            ));
+        }
         if !(self.fine_inlier_px > 0.0 && self.coarse_inlier_px > 0.0) {
             return Err(AlignError::invalid(
                 "inlier distance",
@@ -326,5 +345,33 @@ impl AlignConfig {
             ));
         }
         Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_defaults_validate_and_a_bad_recheck_distance_is_named() {
+        assert!(AlignConfig::default().validate().is_ok());
+        for v in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            let c = AlignConfig {
+                fine_recheck_px: v,
+                ..AlignConfig::default()
+            };
+            let e = c.validate().expect_err("refused").to_string();
+            assert!(e.contains("fine recheck distance"), "{e}");
+        }
+    }
+
+    #[test]
+    fn a_config_written_before_the_recheck_reads_with_its_default() {
+        let mut v = serde_json::to_value(AlignConfig::default()).expect("serialises");
+        v.as_object_mut()
+            .expect("an object")
+            .remove("fine_recheck_px");
+        let c: AlignConfig = serde_json::from_value(v).expect("reads");
+        assert_eq!(c.fine_recheck_px, 8.0);
     }
 }

@@ -362,6 +362,7 @@ impl Matched {
             verified_pairs: self.verified_pairs.clone(),
             coarse_tested: self.coarse_tested,
             fine_pairs: self.fine_pairs,
+            fine_rechecked: self.fine_rechecked,
             reference_tied: self.reference_tied.clone(),
             with_markers: self.with_markers,
             pieces: self.pieces,

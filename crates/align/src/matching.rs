@@ -68,6 +68,8 @@ pub struct Registration {
     pub coarse_tested: usize,
     /// Fine pairs used.
     pub fine_pairs: usize,
+    /// Refined matches dropped as off their pair's homography (`fine::recheck`).
+    pub fine_rechecked: usize,
     /// Frames anchored by reference matches, as (stream, frame number).
     pub reference_tied: BTreeSet<(u32, u64)>,
     /// Frames with markers.
@@ -126,6 +128,7 @@ pub struct Matched {
     pub(crate) verified_pairs: Vec<(u64, u64, usize)>,
     pub(crate) coarse_tested: usize,
     pub(crate) fine_pairs: usize,
+    pub(crate) fine_rechecked: usize,
     pub(crate) reference_tied: BTreeSet<(u32, u64)>,
     pub(crate) with_markers: usize,
     pub(crate) pieces: usize,
@@ -352,6 +355,7 @@ pub fn match_frames(
 
     // Fine matches between connected frames.
     progress.stage("fine matching", (pairs.len() + n) as u64);
+    let rechecked = std::sync::atomic::AtomicUsize::new(0);
     let fine: Vec<_> = pairs
         .par_iter()
         .map(|&(i, j)| {
@@ -359,7 +363,13 @@ pub fn match_frames(
             let known = (j < n_flash)
                 .then(|| connectivity.matches.get(&(comp[i], comp[j])))
                 .flatten();
-            let r = fine_pair(&frames[i], &frames[j], known.map(Vec::as_slice), cfg);
+            let r = fine_pair(
+                &frames[i],
+                &frames[j],
+                known.map(Vec::as_slice),
+                cfg,
+                &rechecked,
+            );
             progress.advance(1);
             r.map(|r| (i, j, r))
         })
@@ -589,6 +599,7 @@ pub fn match_frames(
         verified_pairs,
         coarse_tested,
         fine_pairs,
+        fine_rechecked: rechecked.into_inner(),
         reference_tied,
         with_markers,
         pieces,

@@ -603,6 +603,7 @@ pub fn write(
         coarse_pairs_tested: reg.coarse_tested,
         connected_pairs: reg.connectivity.kept.len(),
         fine_pairs: reg.fine_pairs,
+        fine_matches_rechecked: reg.fine_rechecked,
         reference_anchored: reg.reference_tied.len(),
         frames_with_markers: reg.with_markers,
         pieces: reg.pieces,

@@ -141,6 +141,11 @@ struct AlignArgs {
     /// resolution (default 60, the paper's).
     #[arg(long)]
     fine_inlier_px: Option<f64>,
+    /// A frame pair's patch-refined matches farther than this from one homography
+    /// fitted to them are dropped, pixels at a 3840-pixel long side, scaled (default 8;
+    /// catches matches a period off on repetitive texture; a large value turns it off).
+    #[arg(long)]
+    fine_recheck_px: Option<f64>,
     /// Sub-frame grid as COLSxROWS (default: the paper's 5x11 at 2160x3840, scaled).
     #[arg(long)]
     subframes: Option<String>,
@@ -284,6 +289,9 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
     if let Some(v) = a.fine_inlier_px {
         c.fine_inlier_px = v;
     }
+    if let Some(v) = a.fine_recheck_px {
+        c.fine_recheck_px = v;
+    }
     if let Some(s) = &a.subframes {
         let parts: Vec<&str> = s.split(['x', 'X']).collect();
         let parsed = match parts.as_slice() {
@@ -395,8 +403,10 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     say!("wrote {}", s.out.display());
     say!("frames: {}", f.describe());
     say!(
-        "matching: {} coarse pairs tested, {} connected, {} fine pairs; {} frames see markers, {} anchored to the reference photo{}",
-        s.coarse_pairs_tested, s.connected_pairs, s.fine_pairs, s.frames_with_markers, s.reference_anchored,
+        "matching: {} coarse pairs tested, {} connected, {} fine pairs{}; {} frames see markers, {} anchored to the reference photo{}",
+        s.coarse_pairs_tested, s.connected_pairs, s.fine_pairs,
+        if s.fine_matches_rechecked > 0 { format!(" ({} refined matches dropped as off their pair's homography: repetitive texture)", s.fine_matches_rechecked) } else { String::new() },
+        s.frames_with_markers, s.reference_anchored,
         if s.pieces > 1 { format!("; the frames form {} pieces, each tied to the plane by the reference photo or markers", s.pieces) } else { String::new() }
     );
     if let Some(v) = &s.video_decoding {

@@ -322,6 +322,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         fine_features: None,
         fine_min_inliers: None,
         fine_inlier_px: None,
+        fine_recheck_px: None,
         subframes: None,
         all_pairs: false,
         fixed_exposure: a.fixed_exposure,
