@@ -405,7 +405,7 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     say!(
         "matching: {} coarse pairs tested, {} connected, {} fine pairs{}; {} frames see markers, {} anchored to the reference photo{}",
         s.coarse_pairs_tested, s.connected_pairs, s.fine_pairs,
-        if s.fine_matches_rechecked > 0 { format!(" ({} refined matches dropped as off their pair's homography: repetitive texture)", s.fine_matches_rechecked) } else { String::new() },
+        if s.fine_matches_rechecked > 0 { format!(" ({} refined matches dropped as off their pair's homography)", s.fine_matches_rechecked) } else { String::new() },
         s.frames_with_markers, s.reference_anchored,
         if s.pieces > 1 { format!("; the frames form {} pieces, each tied to the plane by the reference photo or markers", s.pieces) } else { String::new() }
     );
