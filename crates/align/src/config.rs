@@ -198,7 +198,7 @@ fn default_max_noise_gain() -> f64 {
 }
 
 /// 8 px at 3840 (2 px at 960): on Mitsuba-rendered tiles it keeps 96% of the right
-/// refined matches and drops 78% of those over 2 output px off.
+/// refined matches and drops 70-78% of those over 2 output px off.
 fn default_fine_recheck_px() -> f64 {
     8.0
 }

@@ -178,9 +178,9 @@ pub(crate) fn refine_matches(
         .collect()
 }
 
-/// Keep the refined correspondences `(first, second)` that one homography, fitted to
-/// them robustly, explains within `thr`: from first to second in the second's units,
-/// or with `swap` from second to first in the first's. Returns how many it dropped.
+/// Keep the refined correspondences `(first, second)` that one homography from first to
+/// second, fitted to them robustly, explains within `thr` (the second's pixels).
+/// Returns how many it dropped.
 ///
 /// Why: on repetitive texture (a printed motif, mosaic, grout crossings) coarse matches
 /// one period off pass the coarse homography, whose inlier distance must allow for
@@ -191,23 +191,14 @@ pub(crate) fn refine_matches(
 /// ones agree with one homography to a pixel or two even with the lens distortion of
 /// the hard presets. With fewer than 5 matches a homography fits exactly and nothing
 /// is checked.
-pub(crate) fn recheck(
-    pairs: &mut Vec<([f64; 2], Vec2)>,
-    swap: bool,
-    thr: f64,
-) -> Result<usize, AlignError> {
+pub(crate) fn recheck(pairs: &mut Vec<([f64; 2], Vec2)>, thr: f64) -> Result<usize, AlignError> {
     if pairs.len() < 5 {
         return Ok(0);
     }
     let first: Vec<[f64; 2]> = pairs.iter().map(|p| p.0).collect();
     let second: Vec<[f64; 2]> = pairs.iter().map(|p| [p.1.x, p.1.y]).collect();
-    let fit = if swap {
-        estimate_homography(&second, &first, thr)?
-    } else {
-        estimate_homography(&first, &second, thr)?
-    };
     let before = pairs.len();
-    match fit {
+    match estimate_homography(&first, &second, thr)? {
         Some(Robust { inliers, .. }) => {
             let mut keep = inliers.into_iter();
             pairs.retain(|_| keep.next().unwrap_or(false));
@@ -258,7 +249,7 @@ pub(crate) fn fine_pair_patch(
         &h,
         &settings,
     );
-    let dropped = recheck(&mut refined, false, cfg.fine_recheck_px * long / 3840.0)?;
+    let dropped = recheck(&mut refined, cfg.fine_recheck_px * long / 3840.0)?;
     rechecked.fetch_add(dropped, Ordering::Relaxed);
     if refined.len() < min {
         return Ok(None);
@@ -384,7 +375,7 @@ mod tests {
     fn recheck_drops_exactly_the_matches_a_period_off() {
         let (mut pairs, off) = pairs_with_period_errors();
         let before = pairs.clone();
-        let dropped = recheck(&mut pairs, false, 2.0).unwrap();
+        let dropped = recheck(&mut pairs, 2.0).unwrap();
         assert_eq!(dropped, off.len());
         let kept: Vec<usize> = (0..before.len())
             .filter(|&k| pairs.iter().any(|p| p.0 == before[k].0))
@@ -394,30 +385,10 @@ mod tests {
     }
 
     #[test]
-    fn recheck_swapped_measures_in_the_first_members_units() {
-        // Second member in units 10x smaller (cm against px): a 14 px error is 1.4
-        // there; checked in the first member's pixels it is still caught.
-        let (pairs, off) = pairs_with_period_errors();
-        let mut scaled: Vec<([f64; 2], Vec2)> = pairs
-            .iter()
-            .map(|(p, q)| ([q.x, q.y], Vec2::new(p[0], p[1]) * 0.1))
-            .collect();
-        // Swap roles: first = the distorted side, second = the small units.
-        let dropped = recheck(&mut scaled, true, 2.0).unwrap();
-        assert_eq!(dropped, off.len());
-        // Checked in the small units instead, 2.0 lets the errors through.
-        let mut again: Vec<([f64; 2], Vec2)> = pairs
-            .iter()
-            .map(|(p, q)| ([q.x, q.y], Vec2::new(p[0], p[1]) * 0.1))
-            .collect();
-        assert_eq!(recheck(&mut again, false, 2.0).unwrap(), 0);
-    }
-
-    #[test]
     fn recheck_leaves_too_few_matches_alone() {
         let (pairs, _) = pairs_with_period_errors();
         let mut four: Vec<_> = pairs.into_iter().skip(2).take(4).collect();
-        assert_eq!(recheck(&mut four, false, 0.1).unwrap(), 0);
+        assert_eq!(recheck(&mut four, 0.1).unwrap(), 0);
         assert_eq!(four.len(), 4);
     }
 }

@@ -169,9 +169,9 @@ pub struct AlignSummary {
     pub connected_pairs: usize,
     /// Fine pairs used in the solve.
     pub fine_pairs: usize,
-    /// Refined matches between frames dropped because
-    /// one homography of their pair put them over `fine_recheck_px` away (on repetitive
-    /// texture mostly coarse matches a period off; elsewhere a few per thousand).
+    /// Refined matches between frames dropped because one homography of their pair put
+    /// them over `fine_recheck_px` away (on repetitive texture mostly coarse matches a
+    /// period off; elsewhere a few per thousand).
     #[serde(default)]
     pub fine_matches_rechecked: usize,
     /// Frames anchored to the reference photo by feature matches.
