@@ -115,7 +115,8 @@ struct Fixture {
 fn fixture() -> Fixture {
     let tiny = tiny_capture().to_path_buf();
     let root = temp_dir();
-    // Fitted maps for export cases (the fit is seconds on tiny).
+    // Fitted maps for export cases (seconds on tiny without the choice of settings on
+    // held-out frames, which the export cases do not need).
     let maps = root.join("maps");
     let o = crate::util::svbrdf(&[
         "fit",
@@ -125,6 +126,8 @@ fn fixture() -> Fixture {
         &s(&maps),
         "--px-per-cm",
         "8",
+        "--select-folds",
+        "0",
     ]);
     assert!(o.status.success(), "{}", crate::util::stderr(&o));
     // A small MaterialGAN-layout folder (4 square PNGs) for import cases.
@@ -434,14 +437,19 @@ fn corpus() -> Vec<Case> {
 fn hostile_input_corpus() {
     let cases = corpus();
     let next = std::sync::atomic::AtomicUsize::new(0);
-    let results: std::sync::Mutex<Vec<(usize, Result<(), String>)>> = Default::default();
+    // Per case: its index, the outcome and the seconds it took.
+    let results: std::sync::Mutex<Vec<(usize, Result<(), String>, f64)>> = Default::default();
     std::thread::scope(|scope| {
         for _ in 0..2 {
             scope.spawn(|| loop {
                 let i = next.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
                 let Some(case) = cases.get(i) else { return };
+                let t = std::time::Instant::now();
                 let r = check(case);
-                results.lock().unwrap().push((i, r));
+                results
+                    .lock()
+                    .unwrap()
+                    .push((i, r, t.elapsed().as_secs_f64()));
             });
         }
     });
@@ -449,7 +457,7 @@ fn hostile_input_corpus() {
     results.sort_by_key(|r| r.0);
     let mut groups: BTreeMap<&str, (usize, usize, usize)> = BTreeMap::new();
     let mut failures = Vec::new();
-    for (i, r) in &results {
+    for (i, r, _) in &results {
         let case = &cases[*i];
         let g = groups.entry(case.group).or_default();
         g.0 += 1;
@@ -478,6 +486,23 @@ fn hostile_input_corpus() {
         }
     }
     eprintln!("hostile-input corpus: {} cases, {} failed; per group (cases, refused, accepted): {groups:?}", cases.len(), failures.len());
+    // The slowest cases, to keep the corpus's share of CI time in sight (shown with
+    // `--nocapture`).
+    let mut slow: Vec<(f64, &str)> = results
+        .iter()
+        .map(|(i, _, t)| (*t, cases[*i].name.as_str()))
+        .collect();
+    slow.sort_by(|a, b| b.0.total_cmp(&a.0));
+    let total: f64 = slow.iter().map(|s| s.0).sum();
+    let top: Vec<String> = slow
+        .iter()
+        .take(8)
+        .map(|(t, n)| format!("{n} {t:.1} s"))
+        .collect();
+    eprintln!(
+        "hostile-input corpus: {total:.0} s over all cases; slowest: {}",
+        top.join(", ")
+    );
     assert!(
         cases.len() >= 150,
         "the corpus has only {} cases",
