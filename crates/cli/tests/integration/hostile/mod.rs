@@ -438,7 +438,8 @@ fn hostile_input_corpus() {
     let cases = corpus();
     let next = std::sync::atomic::AtomicUsize::new(0);
     // Per case: its index, the outcome and the seconds it took.
-    let results: std::sync::Mutex<Vec<(usize, Result<(), String>, f64)>> = Default::default();
+    type Outcome = (usize, Result<(), String>, f64);
+    let results: std::sync::Mutex<Vec<Outcome>> = Default::default();
     std::thread::scope(|scope| {
         for _ in 0..2 {
             scope.spawn(|| loop {
