@@ -7,7 +7,9 @@ use std::path::{Path, PathBuf};
 use std::process::{Command, Stdio};
 
 use crate::hostile::copy_tree;
-use crate::util::{run_tiny, stderr, svbrdf, temp_dir, tiny_capture, tiny_run, Server};
+use crate::util::{
+    run_tiny, stderr, svbrdf, temp_dir, tiny_capture, tiny_run, Server, NO_SELECTION,
+};
 
 /// A number followed by a unit of time or memory, replaced by `#`: the run's own
 /// measurements in report.html.
@@ -213,12 +215,8 @@ fn assert_refused_until_resumed(dir: &Path, fit_finished: bool) {
     }
 }
 
-/// The runs of the interruption test skip the fit's choice of settings on held-out
-/// frames (`--select-folds 0`): what is tested is the run folder's state after a kill
-/// and the resume, which that choice does not touch, and it is four fifths of a tiny
-/// fit's time (twelve runs).
-const NO_SELECTION: [&str; 2] = ["--select-folds", "0"];
-
+/// Its runs skip the choice of settings ([`NO_SELECTION`]): what is tested is the run
+/// folder's state after a kill and the resume, which that choice does not touch.
 #[test]
 fn an_interrupted_run_is_refused_until_resumed_and_resumes_to_the_same_bytes() {
     let reference = temp_dir().join("reference");

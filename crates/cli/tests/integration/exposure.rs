@@ -1,7 +1,9 @@
 //! Auto-exposure drift: the simulator records it, alignment estimates one gain per
 //! frame, and the fit divides it out.
 
-use crate::util::{align_synth, maps_accuracy, read_json as read, stderr, svbrdf, temp_dir};
+use crate::util::{
+    align_synth, maps_accuracy, read_json as read, stderr, svbrdf, temp_dir, NO_SELECTION,
+};
 
 #[test]
 fn auto_exposure_drift_is_estimated_per_frame_and_divided_out() {
@@ -81,8 +83,8 @@ fn auto_exposure_drift_is_estimated_per_frame_and_divided_out() {
             aligned.to_str().unwrap(),
             "--out",
             maps.to_str().unwrap(),
-            "--select-folds",
-            "0",
+            NO_SELECTION[0],
+            NO_SELECTION[1],
         ]);
         assert!(o.status.success(), "{}", stderr(&o));
         fits.push(maps_accuracy(&maps, &cap)["diffuse_rmse"].as_f64().unwrap());

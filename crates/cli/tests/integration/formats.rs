@@ -3,7 +3,7 @@
 
 use crate::util::{
     align_synth, maps_accuracy, quarter_turns, read_json as read, stderr, svbrdf, temp_dir,
-    tiny_capture,
+    tiny_capture, NO_SELECTION,
 };
 
 /// Synthesize, align and fit a tiny capture; (align.json, fit.json, bench accuracy).
@@ -38,8 +38,8 @@ fn pipeline(
         aligned.to_str().unwrap(),
         "--out",
         maps.to_str().unwrap(),
-        "--select-folds",
-        "0",
+        NO_SELECTION[0],
+        NO_SELECTION[1],
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     let acc = maps_accuracy(&maps, &cap);

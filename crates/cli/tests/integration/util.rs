@@ -10,6 +10,11 @@ pub fn svbrdf(args: &[&str]) -> Output {
         .expect("failed to start svbrdf")
 }
 
+/// Arguments of `fit` and `run` that skip the choice of settings on held-out frames:
+/// for tests whose subject is not the fitted material's settings (that choice is four
+/// fifths of a tiny fit's time).
+pub const NO_SELECTION: [&str; 2] = ["--select-folds", "0"];
+
 /// A fresh temporary folder that lives until the test process ends.
 pub fn temp_dir() -> PathBuf {
     let d = tempfile::tempdir().expect("temp dir");

@@ -245,7 +245,7 @@ pub(super) fn capture_cases(c: &mut Cases) {
     c.fit_capture(
         "valid, at 6 px/cm",
         text,
-        &["--px-per-cm", "6", "--select-folds", "0"],
+        &["--px-per-cm", "6", NO_SELECTION[0], NO_SELECTION[1]],
         Expect::Accept,
     );
 }

@@ -9,7 +9,7 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use crate::util::{temp_dir, tiny_capture};
+use crate::util::{temp_dir, tiny_capture, NO_SELECTION};
 
 mod capture;
 mod output;
@@ -126,8 +126,8 @@ fn fixture() -> Fixture {
         &s(&maps),
         "--px-per-cm",
         "8",
-        "--select-folds",
-        "0",
+        NO_SELECTION[0],
+        NO_SELECTION[1],
     ]);
     assert!(o.status.success(), "{}", crate::util::stderr(&o));
     // A small MaterialGAN-layout folder (4 square PNGs) for import cases.
@@ -285,7 +285,7 @@ impl Cases<'_> {
         // held-out frames that takes seconds, not a minute. (Only there: the flag
         // would override a refused config's own `select_folds`.)
         if matches!(expect, Expect::Accept) {
-            args.extend(["--select-folds".into(), "0".into()]);
+            args.extend(NO_SELECTION.map(String::from));
         }
         self.add(
             name,
