@@ -504,7 +504,7 @@ fn register_and_write(
         let (summary, curve) = relief::estimate(&matched, &result, cfg.reference_weight)?;
         timer.lap("relief shift");
         if summary.applied {
-            relief::correct(&mut matched, &result, &curve);
+            relief::correct(&mut matched, &result, &curve, summary.centre_weight);
             result = matched.solve_again(
                 &Default::default(),
                 &mut result,
