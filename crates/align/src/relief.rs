@@ -4,7 +4,8 @@
 //! depends on the light's tangent `t` there (session 12 measured 15-65 um on the hard
 //! preset's leather). Glossy bumps are brightest where their normal meets the half
 //! vector, which leans from the flash towards the lens, so the shift points at the foot
-//! of a centre between the lens and the flash, chosen by the model ([`CENTRE_WEIGHTS`]). Every flash frame shows the shift, so flash frames agree with
+//! of a centre between the lens and the flash, chosen by the model
+//! ([`CENTRE_WEIGHTS`]). Every flash frame shows the shift, so flash frames agree with
 //! each other when their maps carry it, and the matches with the reference photo (no
 //! flash) pull every map off the plane by `-s(t)`: 0.6 output px median at 4K.
 //!
@@ -218,8 +219,8 @@ fn point_jacobian(h: &[f64], p: Vec2, y: Vec2) -> [[f64; 2]; 2] {
 
 /// One frame's side of a constraint: the frame's slot, the pixel in focal lengths
 /// about the principal point, and the shift direction weighted by each knot (zero for
-/// flat print), for the plane point `y` the frame's map puts it at, under the frame's
-/// flash and lens.
+/// flat print; set by [`Side::pointed`]), for the plane point `y` the frame's map puts
+/// it at, under the frame's flash and lens.
 #[derive(Clone, Copy)]
 struct Side {
     slot: usize,
@@ -242,7 +243,6 @@ impl Side {
             lens,
             texture,
         }
-        .pointed(1.0)
     }
 
     /// The same side with its shift pointing at the centre `w` ([`centre`]).
@@ -573,7 +573,8 @@ fn solve_model(
         shared: [0.0; SHARED],
     };
     let (_, c0, w0) = fit(&mut flat, obs, huber, false)?;
-    let mut best: Option<(f64, Model, DMatrix<f64>, f64, f64, f64)> = None;
+    let mean = |c: f64, ws: f64| c / ws.max(1e-12);
+    let mut best: Option<(Model, DMatrix<f64>, f64, f64, f64)> = None;
     for w in CENTRE_WEIGHTS {
         let pointed: Vec<Obs> = obs.iter().map(|o| o.pointed(w)).collect();
         let mut m = Model {
@@ -581,19 +582,15 @@ fn solve_model(
             shared: flat.shared,
         };
         let (a, c, ws) = fit(&mut m, &pointed, huber, true)?;
-        let mean = c / ws.max(1e-12);
-        if best.as_ref().is_none_or(|b| mean < b.0) {
-            best = Some((mean, m, a, c, ws, w));
+        if best.as_ref().is_none_or(|b| mean(c, ws) < mean(b.2, b.3)) {
+            best = Some((m, a, c, ws, w));
         }
     }
-    let Some((_, model, a, c1, w1, w)) = best else {
+    let Some((model, a, c1, w1, w)) = best else {
         return Err(AlignError::Solve("relief model: no centre tried".into()));
     };
     summary.centre_weight = w;
-    summary.rms_um = [
-        1e4 * (c0 / w0.max(1e-12)).sqrt(),
-        1e4 * (c1 / w1.max(1e-12)).sqrt(),
-    ];
+    summary.rms_um = [1e4 * mean(c0, w0).sqrt(), 1e4 * mean(c1, w1).sqrt()];
     summary.lens = [model.shared[0], model.shared[1]];
     summary.gain = if c0 > 0.0 && w0 > 0.0 && w1 > 0.0 {
         1.0 - (c1 / w1) / (c0 / w0)

@@ -450,7 +450,7 @@ fn the_relief_shift_of_leather_is_measured_and_corrected() {
     // The centre the shift points at, between lens (0) and flash (1): half way on every
     // leather capture measured (session 35).
     let w = r["centre_weight"].as_f64().unwrap();
-    assert!([0.0, 0.25, 0.5, 0.75, 1.0].contains(&w), "{r}");
+    assert!(svbrdf_align::relief::CENTRE_WEIGHTS.contains(&w), "{r}");
     // Towards that centre, tens of micrometres where the light's tangent is 0.1-0.4
     // (measured 143, 126, 127, 73 um), and the lens found is the capture's (k1 -0.05
     // rendered: a1 about +0.05).
