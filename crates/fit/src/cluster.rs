@@ -28,6 +28,72 @@ pub fn nearest(p: &Lab, centres: &[Lab]) -> (usize, f64) {
     best
 }
 
+/// Squared distances between every pair of centres (`k x k`, row-major) and, per
+/// centre, the smallest of them to another centre.
+struct CentreGaps {
+    k: usize,
+    between: Vec<f64>,
+    closest: Vec<f64>,
+}
+
+impl CentreGaps {
+    fn new(centres: &[Lab]) -> Self {
+        let k = centres.len();
+        let mut between = vec![0.0; k * k];
+        let mut closest = vec![f64::INFINITY; k];
+        for a in 0..k {
+            for b in 0..k {
+                if a != b {
+                    let d = dist2(&centres[a], &centres[b]);
+                    between[a * k + b] = d;
+                    closest[a] = closest[a].min(d);
+                }
+            }
+        }
+        Self {
+            k,
+            between,
+            closest,
+        }
+    }
+
+    /// Whether every point at squared distance `d` from a centre is strictly nearer to
+    /// it than to a centre at squared distance `gap` from it: `sqrt(gap) > 2 sqrt(d)`
+    /// (triangle inequality), with a relative margin far above rounding and an absolute
+    /// floor, so that no tie is ever decided by the bound.
+    fn separates(gap: f64, d: f64) -> bool {
+        gap > 4.0 * d * (1.0 + 1e-9) + 1e-12
+    }
+}
+
+/// [`nearest`] with the same result to the last bit (the same index, ties to the lowest
+/// index, and the same distance), sooner: the centre `hint` (any index below `k`) is
+/// measured first, and centres the triangle inequality puts strictly farther than it
+/// are not measured. Lloyd's iterations pass each point's last centre.
+fn nearest_from(p: &Lab, centres: &[Lab], gaps: &CentreGaps, hint: usize) -> (usize, f64) {
+    let dh = dist2(p, &centres[hint]);
+    // Every other centre is strictly farther: only `hint` can be the nearest.
+    if CentreGaps::separates(gaps.closest[hint], dh) {
+        return (hint, dh);
+    }
+    let row = &gaps.between[hint * gaps.k..(hint + 1) * gaps.k];
+    let mut best = (0, f64::INFINITY);
+    for (i, c) in centres.iter().enumerate() {
+        let d = if i == hint {
+            dh
+        } else if CentreGaps::separates(row[i], dh) {
+            // Strictly farther than `hint`, so never the (first) nearest.
+            continue;
+        } else {
+            dist2(p, c)
+        };
+        if d < best.1 {
+            best = (i, d);
+        }
+    }
+    best
+}
+
 /// Lloyd's k-means with k-means++ seeding; returns the centres and the summed squared
 /// error. Deterministic for a seed.
 pub fn kmeans(points: &[Lab], k: usize, seed: u64, iterations: usize) -> (Vec<Lab>, f64) {
@@ -37,6 +103,9 @@ pub fn kmeans(points: &[Lab], k: usize, seed: u64, iterations: usize) -> (Vec<La
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     let mut centres = vec![points[rng.random_range(0..points.len())]];
     let mut d2: Vec<f64> = points.iter().map(|p| dist2(p, &centres[0])).collect();
+    // Each point's centre (a seed, then its centre in the last iteration): where its
+    // nearest-centre search starts. Any start gives the same result; a good one is faster.
+    let mut labels = vec![0usize; points.len()];
     while centres.len() < k {
         let total: f64 = d2.iter().sum();
         let next = if total > 0.0 {
@@ -55,16 +124,23 @@ pub fn kmeans(points: &[Lab], k: usize, seed: u64, iterations: usize) -> (Vec<La
         };
         let c = points[next];
         centres.push(c);
-        for (d, p) in d2.iter_mut().zip(points) {
-            *d = d.min(dist2(p, &c));
+        // Each point's nearest seed so far: where its first search below starts.
+        for ((d, l), p) in d2.iter_mut().zip(labels.iter_mut()).zip(points) {
+            let e = dist2(p, &c);
+            if e < *d {
+                *l = centres.len() - 1;
+            }
+            *d = d.min(e);
         }
     }
     let mut sse = f64::INFINITY;
     for _ in 0..iterations {
         let mut sums = vec![[0.0; 4]; k];
         let mut new_sse = 0.0;
-        for p in points {
-            let (i, d) = nearest(p, &centres);
+        let gaps = CentreGaps::new(&centres);
+        for (p, label) in points.iter().zip(labels.iter_mut()) {
+            let (i, d) = nearest_from(p, &centres, &gaps, *label);
+            *label = i;
             new_sse += d;
             for j in 0..3 {
                 sums[i][j] += p[j];
@@ -82,7 +158,12 @@ pub fn kmeans(points: &[Lab], k: usize, seed: u64, iterations: usize) -> (Vec<La
             break;
         }
     }
-    let sse = points.iter().map(|p| nearest(p, &centres).1).sum();
+    let gaps = CentreGaps::new(&centres);
+    let sse = points
+        .iter()
+        .zip(&labels)
+        .map(|(p, &l)| nearest_from(p, &centres, &gaps, l).1)
+        .sum();
     (centres, sse)
 }
 
@@ -219,6 +300,113 @@ mod tests {
         let curve = [100.0, 60.0, 20.0, 15.0, 13.0, 12.0, 11.0, 10.5];
         assert_eq!(elbow(2, &curve), 4);
         assert_eq!(elbow(2, &[5.0, 4.0]), 2);
+    }
+
+    /// Lloyd's k-means as it was before [`nearest_from`]: every centre measured for
+    /// every point.
+    fn kmeans_measuring_every_centre(
+        points: &[Lab],
+        k: usize,
+        seed: u64,
+        iterations: usize,
+    ) -> (Vec<Lab>, f64) {
+        let mut rng = ChaCha8Rng::seed_from_u64(seed);
+        let mut centres = vec![points[rng.random_range(0..points.len())]];
+        let mut d2: Vec<f64> = points.iter().map(|p| dist2(p, &centres[0])).collect();
+        while centres.len() < k {
+            let total: f64 = d2.iter().sum();
+            let next = if total > 0.0 {
+                let mut t = rng.random::<f64>() * total;
+                let mut pick = points.len() - 1;
+                for (i, d) in d2.iter().enumerate() {
+                    t -= d;
+                    if t <= 0.0 {
+                        pick = i;
+                        break;
+                    }
+                }
+                pick
+            } else {
+                rng.random_range(0..points.len())
+            };
+            let c = points[next];
+            centres.push(c);
+            for (d, p) in d2.iter_mut().zip(points) {
+                *d = d.min(dist2(p, &c));
+            }
+        }
+        let mut sse = f64::INFINITY;
+        for _ in 0..iterations {
+            let mut sums = vec![[0.0; 4]; k];
+            let mut new_sse = 0.0;
+            for p in points {
+                let (i, d) = nearest(p, &centres);
+                new_sse += d;
+                for j in 0..3 {
+                    sums[i][j] += p[j];
+                }
+                sums[i][3] += 1.0;
+            }
+            for (c, s) in centres.iter_mut().zip(&sums) {
+                if s[3] > 0.0 {
+                    *c = [s[0] / s[3], s[1] / s[3], s[2] / s[3]];
+                }
+            }
+            let done = new_sse >= sse * (1.0 - 1e-6);
+            sse = new_sse;
+            if done {
+                break;
+            }
+        }
+        let sse = points.iter().map(|p| nearest(p, &centres).1).sum();
+        (centres, sse)
+    }
+
+    fn bits(r: &(Vec<Lab>, f64)) -> (Vec<[u64; 3]>, u64) {
+        (
+            r.0.iter().map(|c| c.map(f64::to_bits)).collect(),
+            r.1.to_bits(),
+        )
+    }
+
+    #[test]
+    fn pruned_kmeans_gives_the_same_bits_as_measuring_every_centre() {
+        let mut rng = ChaCha8Rng::seed_from_u64(11);
+        // Clustered colours, overlapping clusters, and points on an integer grid
+        // (exact ties between centres, repeated points, points on centres).
+        let clustered: Vec<Lab> = (0..3000)
+            .map(|i| {
+                let c = [(i % 7) as f64 * 12.0, (i % 3) as f64 * 9.0 - 9.0, 4.0];
+                c.map(|v| v + 3.0 * (rng.random::<f64>() - 0.5))
+            })
+            .collect();
+        let spread: Vec<Lab> = (0..2000)
+            .map(|_| [0; 3].map(|_: i32| 100.0 * rng.random::<f64>()))
+            .collect();
+        let grid: Vec<Lab> = (0..1500)
+            .map(|i| [(i % 5) as f64, ((i / 5) % 4) as f64, 0.0])
+            .collect();
+        for points in [&clustered, &spread, &grid] {
+            for k in [1, 2, 3, 5, 8, 13, 20] {
+                for seed in 0..3u64 {
+                    let a = kmeans(points, k, seed, 50);
+                    let b = kmeans_measuring_every_centre(points, k, seed, 50);
+                    assert_eq!(bits(&a), bits(&b), "k {k} seed {seed}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn the_bound_never_decides_a_tie() {
+        // Two centres at squared distance 4 and a point at squared distance 1 from the
+        // first: the point is exactly between them only at the bound's limit, so the
+        // bound must not skip the second centre.
+        assert!(!CentreGaps::separates(4.0, 1.0));
+        assert!(CentreGaps::separates(4.0 + 1e-6, 1.0));
+        assert!(!CentreGaps::separates(0.0, 0.0));
+        assert!(!CentreGaps::separates(f64::NAN, 1.0));
+        assert!(!CentreGaps::separates(4.0, f64::NAN));
     }
 
     #[test]
