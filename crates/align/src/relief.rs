@@ -366,7 +366,7 @@ fn assemble(
         if let Some((a, g)) = &mut ne {
             // The lower triangle only (`J^T W J` is symmetric; the Cholesky factorisation
             // reads no more), each entry summed in the same order as the full product;
-            // mirrored once below. Half the work of the relief stage's hottest loop.
+            // mirrored once below.
             let lower = a.as_mut_slice();
             for (ci, ji) in &jac {
                 g[*ci] += w * ji.dot(&r);

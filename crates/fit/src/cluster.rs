@@ -97,6 +97,12 @@ fn nearest_from(p: &Lab, centres: &[Lab], gaps: &CentreGaps, hint: usize) -> (us
 /// Lloyd's k-means with k-means++ seeding; returns the centres and the summed squared
 /// error. Deterministic for a seed.
 pub fn kmeans(points: &[Lab], k: usize, seed: u64, iterations: usize) -> (Vec<Lab>, f64) {
+    lloyd(points, k, seed, iterations, true)
+}
+
+/// [`kmeans`], each point's nearest centre found by [`nearest_from`] when `prune`, else
+/// by measuring every centre ([`nearest`]); the two give the same bits.
+fn lloyd(points: &[Lab], k: usize, seed: u64, iterations: usize, prune: bool) -> (Vec<Lab>, f64) {
     if points.is_empty() || k == 0 {
         return (Vec::new(), 0.0);
     }
@@ -139,7 +145,11 @@ pub fn kmeans(points: &[Lab], k: usize, seed: u64, iterations: usize) -> (Vec<La
         let mut new_sse = 0.0;
         let gaps = CentreGaps::new(&centres);
         for (p, label) in points.iter().zip(labels.iter_mut()) {
-            let (i, d) = nearest_from(p, &centres, &gaps, *label);
+            let (i, d) = if prune {
+                nearest_from(p, &centres, &gaps, *label)
+            } else {
+                nearest(p, &centres)
+            };
             *label = i;
             new_sse += d;
             for j in 0..3 {
@@ -162,7 +172,13 @@ pub fn kmeans(points: &[Lab], k: usize, seed: u64, iterations: usize) -> (Vec<La
     let sse = points
         .iter()
         .zip(&labels)
-        .map(|(p, &l)| nearest_from(p, &centres, &gaps, l).1)
+        .map(|(p, &l)| {
+            if prune {
+                nearest_from(p, &centres, &gaps, l).1
+            } else {
+                nearest(p, &centres).1
+            }
+        })
         .sum();
     (centres, sse)
 }
@@ -302,66 +318,6 @@ mod tests {
         assert_eq!(elbow(2, &[5.0, 4.0]), 2);
     }
 
-    /// Lloyd's k-means as it was before [`nearest_from`]: every centre measured for
-    /// every point.
-    fn kmeans_measuring_every_centre(
-        points: &[Lab],
-        k: usize,
-        seed: u64,
-        iterations: usize,
-    ) -> (Vec<Lab>, f64) {
-        let mut rng = ChaCha8Rng::seed_from_u64(seed);
-        let mut centres = vec![points[rng.random_range(0..points.len())]];
-        let mut d2: Vec<f64> = points.iter().map(|p| dist2(p, &centres[0])).collect();
-        while centres.len() < k {
-            let total: f64 = d2.iter().sum();
-            let next = if total > 0.0 {
-                let mut t = rng.random::<f64>() * total;
-                let mut pick = points.len() - 1;
-                for (i, d) in d2.iter().enumerate() {
-                    t -= d;
-                    if t <= 0.0 {
-                        pick = i;
-                        break;
-                    }
-                }
-                pick
-            } else {
-                rng.random_range(0..points.len())
-            };
-            let c = points[next];
-            centres.push(c);
-            for (d, p) in d2.iter_mut().zip(points) {
-                *d = d.min(dist2(p, &c));
-            }
-        }
-        let mut sse = f64::INFINITY;
-        for _ in 0..iterations {
-            let mut sums = vec![[0.0; 4]; k];
-            let mut new_sse = 0.0;
-            for p in points {
-                let (i, d) = nearest(p, &centres);
-                new_sse += d;
-                for j in 0..3 {
-                    sums[i][j] += p[j];
-                }
-                sums[i][3] += 1.0;
-            }
-            for (c, s) in centres.iter_mut().zip(&sums) {
-                if s[3] > 0.0 {
-                    *c = [s[0] / s[3], s[1] / s[3], s[2] / s[3]];
-                }
-            }
-            let done = new_sse >= sse * (1.0 - 1e-6);
-            sse = new_sse;
-            if done {
-                break;
-            }
-        }
-        let sse = points.iter().map(|p| nearest(p, &centres).1).sum();
-        (centres, sse)
-    }
-
     fn bits(r: &(Vec<Lab>, f64)) -> (Vec<[u64; 3]>, u64) {
         (
             r.0.iter().map(|c| c.map(f64::to_bits)).collect(),
@@ -390,7 +346,7 @@ mod tests {
             for k in [1, 2, 3, 5, 8, 13, 20] {
                 for seed in 0..3u64 {
                     let a = kmeans(points, k, seed, 50);
-                    let b = kmeans_measuring_every_centre(points, k, seed, 50);
+                    let b = lloyd(points, k, seed, 50, false);
                     assert_eq!(bits(&a), bits(&b), "k {k} seed {seed}");
                 }
             }
