@@ -68,6 +68,13 @@ pub struct AlignConfig {
     pub fine_recheck_px: f64,
     /// Minimum fine inliers for a pair (paper: 60).
     pub fine_min_inliers: usize,
+    /// Guided matches (patch method, ours): where a sub-frame of either frame of a pair
+    /// holds fewer refined correspondences than this, the pair's other features there
+    /// are predicted through the pair's homography and refined by patches (the ratio
+    /// test rejects features that look alike, as every grout crossing of a tiled floor
+    /// does). Correspondences per sub-frame; 0 turns it off.
+    #[serde(default = "default_fine_fill")]
+    pub fine_fill: usize,
     /// Sub-frame grid (columns, rows); default scales the paper's 5 x 11 at 2160 x 3840.
     pub subframes: Option<(u32, u32)>,
     /// SIFT contrast threshold (OpenCV's default is 0.04; materials are often low-contrast).
@@ -166,6 +173,7 @@ impl Default for AlignConfig {
             fine_inlier_px: 60.0,
             fine_recheck_px: default_fine_recheck_px(),
             fine_min_inliers: 60,
+            fine_fill: default_fine_fill(),
             subframes: None,
             sift_contrast: 0.02,
             match_reference: true,
@@ -201,6 +209,10 @@ fn default_max_noise_gain() -> f64 {
 /// refined matches and drops 70-78% of those over 2 output px off.
 fn default_fine_recheck_px() -> f64 {
     8.0
+}
+
+fn default_fine_fill() -> usize {
+    8
 }
 
 fn default_true() -> bool {
@@ -278,6 +290,13 @@ impl AlignConfig {
                 "fine recheck distance",
                 self.fine_recheck_px,
                 "pixels at 3840 px, > 0 (a large value turns the check off)",
+            ));
+        }
+        if self.fine_fill > 1000 {
+            return Err(AlignError::invalid(
+                "guided fill",
+                self.fine_fill,
+                "correspondences per sub-frame, 0 (off) to 1000",
             ));
         }
         if !(self.fine_inlier_px > 0.0 && self.coarse_inlier_px > 0.0) {

@@ -14,8 +14,19 @@ use crate::config::{AlignConfig, FineMethod};
 use crate::frames::FrameData;
 use crate::patch::{refine, Grey, PatchSettings};
 use crate::reference::ReferenceFrame;
+use crate::subframes::Grid;
+use crate::ties::two_dimensional;
 use crate::AlignError;
 use std::sync::atomic::{AtomicUsize, Ordering};
+
+/// What the fine matching of all pairs did beyond the paper, counted across threads.
+#[derive(Debug, Default)]
+pub(crate) struct FineCounts {
+    /// Refined matches dropped by [`recheck`].
+    pub rechecked: AtomicUsize,
+    /// Guided matches kept ([`guided_fill`]), after the recheck.
+    pub guided: AtomicUsize,
+}
 
 /// Verified correspondences (frame a px, frame b px) and the homography a -> b.
 pub(crate) type FineMatch = (Vec<[f64; 2]>, Vec<[f64; 2]>, Mat3);
@@ -91,16 +102,16 @@ pub(crate) fn fine_min(f: &FrameData, cfg: &AlignConfig) -> usize {
 }
 
 /// Verified fine correspondences between frames a and b (full-resolution pixels).
-/// `rechecked` counts the refined matches dropped by [`recheck`].
+/// `counts` adds what the patch method's recheck dropped and its guided fill added.
 pub(crate) fn fine_pair(
     a: &FrameData,
     b: &FrameData,
     coarse_matches: Option<&[(u32, u32)]>,
     cfg: &AlignConfig,
-    rechecked: &AtomicUsize,
+    counts: &FineCounts,
 ) -> Result<Option<FineMatch>, AlignError> {
     if cfg.fine_method == FineMethod::Patch {
-        return fine_pair_patch(a, b, coarse_matches, cfg, rechecked);
+        return fine_pair_patch(a, b, coarse_matches, cfg, counts);
     }
     let m = match_one_to_one(&a.fine, &b.fine, 0.8)?;
     let min = fine_min(a, cfg);
@@ -178,9 +189,9 @@ pub(crate) fn refine_matches(
         .collect()
 }
 
-/// Keep the refined correspondences `(first, second)` that one homography from first to
-/// second, fitted to them robustly, explains within `thr` (the second's pixels).
-/// Returns how many it dropped.
+/// Keep the items whose refined correspondence `at(item) = (first, second)` one
+/// homography from first to second, fitted to them robustly, explains within `thr`
+/// (the second's pixels). Returns how many it dropped.
 ///
 /// Why: on repetitive texture (a printed motif, mosaic, grout crossings) coarse matches
 /// one period off pass the coarse homography, whose inlier distance must allow for
@@ -191,21 +202,31 @@ pub(crate) fn refine_matches(
 /// ones agree with one homography to a pixel or two even with the lens distortion of
 /// the hard presets. With fewer than 5 matches a homography fits exactly and nothing
 /// is checked.
-pub(crate) fn recheck(pairs: &mut Vec<([f64; 2], Vec2)>, thr: f64) -> Result<usize, AlignError> {
-    if pairs.len() < 5 {
+pub(crate) fn recheck<T>(
+    items: &mut Vec<T>,
+    at: impl Fn(&T) -> ([f64; 2], Vec2),
+    thr: f64,
+) -> Result<usize, AlignError> {
+    if items.len() < 5 {
         return Ok(0);
     }
-    let first: Vec<[f64; 2]> = pairs.iter().map(|p| p.0).collect();
-    let second: Vec<[f64; 2]> = pairs.iter().map(|p| [p.1.x, p.1.y]).collect();
-    let before = pairs.len();
+    let first: Vec<[f64; 2]> = items.iter().map(|p| at(p).0).collect();
+    let second: Vec<[f64; 2]> = items
+        .iter()
+        .map(|p| {
+            let q = at(p).1;
+            [q.x, q.y]
+        })
+        .collect();
+    let before = items.len();
     match estimate_homography(&first, &second, thr)? {
         Some(Robust { inliers, .. }) => {
             let mut keep = inliers.into_iter();
-            pairs.retain(|_| keep.next().unwrap_or(false));
+            items.retain(|_| keep.next().unwrap_or(false));
         }
-        None => pairs.clear(),
+        None => items.clear(),
     }
-    Ok(before - pairs.len())
+    Ok(before - items.len())
 }
 
 /// [`fine_pair`] by patch refinement of the coarse matches (those of the coarse stage
@@ -215,7 +236,7 @@ pub(crate) fn fine_pair_patch(
     b: &FrameData,
     coarse_matches: Option<&[(u32, u32)]>,
     cfg: &AlignConfig,
-    rechecked: &AtomicUsize,
+    counts: &FineCounts,
 ) -> Result<Option<FineMatch>, AlignError> {
     let (Some(ga), Some(gb)) = (a.grey.as_deref(), b.grey.as_deref()) else {
         return Ok(None);
@@ -237,7 +258,7 @@ pub(crate) fn fine_pair_patch(
     };
     let h = svbrdf_core::geometry::mat3_from_rows(&model);
     let settings = patch_settings(cfg, long, ga.width.max(ga.height) as f64);
-    let mut refined = refine_matches(
+    let refined = refine_matches(
         (ga, a.width),
         (gb, b.width),
         (0..src.len()).filter(|&k| inliers[k]).map(|k| {
@@ -249,8 +270,38 @@ pub(crate) fn fine_pair_patch(
         &h,
         &settings,
     );
-    let dropped = recheck(&mut refined, cfg.fine_recheck_px * long / 3840.0)?;
-    rechecked.fetch_add(dropped, Ordering::Relaxed);
+    // Each match tagged with whether the guided fill found it.
+    let mut refined: Vec<(([f64; 2], Vec2), bool)> =
+        refined.into_iter().map(|r| (r, false)).collect();
+    if cfg.fine_fill > 0 {
+        let used: Vec<u32> = (0..m.len())
+            .filter(|&k| inliers[k])
+            .map(|k| m[k].0)
+            .collect();
+        let have: Vec<([f64; 2], Vec2)> = refined.iter().map(|r| r.0).collect();
+        let candidates = guided_fill((a, ga), (b, gb), &used, &have, &h, cfg, &settings);
+        // Held to a stricter correlation than matches that passed the ratio test.
+        let strict = PatchSettings {
+            min_ncc: GUIDED_MIN_NCC,
+            ..settings
+        };
+        refined.extend(
+            refine_matches(
+                (ga, a.width),
+                (gb, b.width),
+                candidates.into_iter(),
+                &h,
+                &strict,
+            )
+            .into_iter()
+            .map(|r| (r, true)),
+        );
+    }
+    let dropped = recheck(&mut refined, |r| r.0, cfg.fine_recheck_px * long / 3840.0)?;
+    let guided = refined.iter().filter(|r| r.1).count();
+    counts.rechecked.fetch_add(dropped, Ordering::Relaxed);
+    counts.guided.fetch_add(guided, Ordering::Relaxed);
+    let refined: Vec<([f64; 2], Vec2)> = refined.into_iter().map(|r| r.0).collect();
     if refined.len() < min {
         return Ok(None);
     }
@@ -259,6 +310,106 @@ pub(crate) fn fine_pair_patch(
         refined.iter().map(|r| [r.1.x, r.1.y]).collect(),
         h,
     )))
+}
+
+/// Lowest normalised cross-correlation of a guided match ([`guided_fill`]); matches
+/// that passed the ratio test need 0.8 (`PatchSettings::default`). At 0.8 the guided
+/// matches made hard-small leather and bathroom tiles worse (median 0.099 -> 0.111 and
+/// 0.175 -> 0.192 output px, a frame 0.54 -> 0.91 px): the sub-frames short of matches
+/// lie about the flash highlight, whose shading moves with the phone and which a loose
+/// correlation follows. At 0.95 those captures are as before (0.097, 0.180) and the
+/// Mitsuba-rendered tiles keep the gain (`docs/BENCHMARKS.md`, session 38).
+pub const GUIDED_MIN_NCC: f32 = 0.95;
+
+/// Candidates for guided matches of the pair (a, b), as (a px, predicted b px): a's
+/// coarse features that are not among the matches used (`used`, indices into
+/// `a.coarse`), predicted in b through the pair's homography `h_ab`, lying in a
+/// sub-frame of a or of b that holds fewer than `cfg.fine_fill` of the refined matches
+/// `have`, with texture in two directions (on a grout line alone the patch would slide
+/// along it). Each short sub-frame gets at most twice what it lacks (some candidates
+/// fail to refine); features at a position already taken are skipped (SIFT repeats a
+/// point for each of its orientations).
+///
+/// Why: the ratio test rejects a feature whose descriptor has a near twin elsewhere in
+/// the frame, as every grout crossing and every copy of a printed motif has. Between
+/// frames whose homography is known to a pixel or two, position tells the twins apart,
+/// and the patch refinement and [`recheck`] verify each one as they do the rest.
+pub(crate) fn guided_fill(
+    (a, ga): (&FrameData, &Grey),
+    (b, gb): (&FrameData, &Grey),
+    used: &[u32],
+    have: &[([f64; 2], Vec2)],
+    h_ab: &Mat3,
+    cfg: &AlignConfig,
+    settings: &PatchSettings,
+) -> Vec<(Vec2, Vec2)> {
+    let fill = cfg.fine_fill;
+    let (grid_a, grid_b) = (
+        Grid::new(a.width, a.height, cfg),
+        Grid::new(b.width, b.height, cfg),
+    );
+    let mut count_a = vec![0usize; grid_a.len()];
+    let mut count_b = vec![0usize; grid_b.len()];
+    let mut taken = std::collections::HashSet::new();
+    let key = |p: Vec2| (p.x.round() as i64, p.y.round() as i64);
+    for (p, q) in have {
+        let p = Vec2::new(p[0], p[1]);
+        count_a[grid_a.cell(p)] += 1;
+        count_b[grid_b.cell(*q)] += 1;
+        taken.insert(key(p));
+    }
+    let short = |count: &[usize]| count.iter().any(|&c| c < fill);
+    if fill == 0 || !(short(&count_a) || short(&count_b)) {
+        return Vec::new();
+    }
+    let mut is_used = vec![false; a.coarse.points.len()];
+    for &k in used {
+        if let Some(u) = is_used.get_mut(k as usize) {
+            *u = true;
+        }
+    }
+    let h = Homography(*h_ab);
+    let s_a = ga.width as f64 / f64::from(a.width);
+    let s_b = gb.width as f64 / f64::from(b.width);
+    // Where the patch and its search window stay inside b, in b's pixels.
+    let margin = (settings.radius + settings.search.unsigned_abs() as usize + 2) as f64 / s_b;
+    let inside_b = |q: Vec2| {
+        q.x >= margin
+            && q.y >= margin
+            && q.x < f64::from(b.width) - margin
+            && q.y < f64::from(b.height) - margin
+    };
+    let mut tried_a = vec![0usize; grid_a.len()];
+    let mut tried_b = vec![0usize; grid_b.len()];
+    let wants = |count: usize, tried: usize| count < fill && tried < 2 * (fill - count);
+    let mut out = Vec::new();
+    for (k, pt) in pts(&a.coarse, 0..a.coarse.points.len() as u32)
+        .into_iter()
+        .enumerate()
+    {
+        if is_used[k] {
+            continue;
+        }
+        let p = Vec2::new(pt[0], pt[1]);
+        let Some(q) = h.apply(p) else {
+            continue;
+        };
+        if !inside_b(q) || taken.contains(&key(p)) {
+            continue;
+        }
+        let (ca, cb) = (grid_a.cell(p), grid_b.cell(q));
+        if !(wants(count_a[ca], tried_a[ca]) || wants(count_b[cb], tried_b[cb])) {
+            continue;
+        }
+        if !two_dimensional(ga, to_grey(p, s_a), settings.radius) {
+            continue;
+        }
+        taken.insert(key(p));
+        tried_a[ca] += 1;
+        tried_b[cb] += 1;
+        out.push((p, q));
+    }
+    out
 }
 
 /// A frame's anchors on the reference photo (frame pixel, plane cm) and how many
@@ -375,7 +526,7 @@ mod tests {
     fn recheck_drops_exactly_the_matches_a_period_off() {
         let (mut pairs, off) = pairs_with_period_errors();
         let before = pairs.clone();
-        let dropped = recheck(&mut pairs, 2.0).unwrap();
+        let dropped = recheck(&mut pairs, |p| *p, 2.0).unwrap();
         assert_eq!(dropped, off.len());
         let kept: Vec<usize> = (0..before.len())
             .filter(|&k| pairs.iter().any(|p| p.0 == before[k].0))
@@ -388,7 +539,150 @@ mod tests {
     fn recheck_leaves_too_few_matches_alone() {
         let (pairs, _) = pairs_with_period_errors();
         let mut four: Vec<_> = pairs.into_iter().skip(2).take(4).collect();
-        assert_eq!(recheck(&mut four, 0.1).unwrap(), 0);
+        assert_eq!(recheck(&mut four, |p| *p, 0.1).unwrap(), 0);
         assert_eq!(four.len(), 4);
+    }
+
+    /// Grout crossings: the same cross every 40 px on smooth shading, as an image seen
+    /// through a shift `t` (a point `p` of the first frame lies at `p + t`).
+    fn crossings(width: usize, height: usize, t: Vec2) -> Grey {
+        let node = |x: f64| (x - 20.0) - 40.0 * ((x - 20.0) / 40.0).round();
+        let mut data = Vec::with_capacity(width * height);
+        for y in 0..height {
+            for x in 0..width {
+                let (dx, dy) = (node(x as f64 - t.x), node(y as f64 - t.y));
+                let arm = |u: f64, v: f64| (-(u / 1.5).powi(2) - (v / 6.0).powi(2)).exp();
+                let v = 60.0 + 0.1 * x as f64 + 120.0 * (arm(dx, dy) + arm(dy, dx));
+                data.push(v.round().clamp(0.0, 255.0) as u8);
+            }
+        }
+        Grey {
+            width,
+            height,
+            data,
+        }
+    }
+
+    fn frame(grey: Grey, points: Vec<[f32; 2]>) -> FrameData {
+        let n = points.len();
+        FrameData {
+            index: 0,
+            stream: 0,
+            file: None,
+            time_s: 0.0,
+            width: grey.width as u32,
+            height: grey.height as u32,
+            blur: 1.0,
+            markers: Vec::new(),
+            // Every crossing's descriptor alike: the ratio test would take none.
+            coarse: Features {
+                points,
+                descriptors: vec![0.0; 128 * n],
+            },
+            fine: Features {
+                points: Vec::new(),
+                descriptors: Vec::new(),
+            },
+            grey: Some(std::sync::Arc::new(grey)),
+            thumb: ImageU8::new(1, 1, 1),
+        }
+    }
+
+    #[test]
+    fn guided_fill_finds_look_alike_crossings_where_sub_frames_lack_matches() {
+        let (w, h) = (320usize, 480usize);
+        let t = Vec2::new(3.3, -2.1);
+        let mut points = Vec::new();
+        for y in (20..h - 20).step_by(40) {
+            for x in (20..w - 20).step_by(40) {
+                points.push([x as f32, y as f32]);
+            }
+        }
+        // SIFT repeats a point for each of its orientations.
+        points.push(points[points.len() - 3]);
+        // Unmatched features in the top sub-frames, which hold enough matches already.
+        let extra: Vec<[f32; 2]> = points
+            .iter()
+            .filter(|p| p[1] <= 180.0)
+            .map(|p| [p[0] + 1.0, p[1]])
+            .collect();
+        let matched_half = |p: &[f32; 2]| p[1] < 240.0 && p[0] % 40.0 == 20.0;
+        points.extend(extra);
+        let a = frame(crossings(w, h, Vec2::new(0.0, 0.0)), points.clone());
+        let b = frame(crossings(w, h, t), Vec::new());
+        let (ga, gb) = (a.grey.as_deref().unwrap(), b.grey.as_deref().unwrap());
+        // The top half matched already; the bottom half's crossings failed the ratio test.
+        let used: Vec<u32> = (0..points.len() as u32)
+            .filter(|&k| matched_half(&points[k as usize]))
+            .collect();
+        let have: Vec<([f64; 2], Vec2)> = used
+            .iter()
+            .map(|&k| {
+                let p = points[k as usize];
+                (
+                    [f64::from(p[0]), f64::from(p[1])],
+                    Vec2::new(f64::from(p[0]), f64::from(p[1])) + t,
+                )
+            })
+            .collect();
+        // The pair's homography, 1.4 px off the truth.
+        let h_ab = Mat3::new(1.0, 0.0, t.x + 1.2, 0.0, 1.0, t.y - 0.8, 0.0, 0.0, 1.0);
+        let cfg = AlignConfig {
+            fine_fill: 4,
+            ..AlignConfig::default()
+        };
+        let settings = patch_settings(&cfg, h as f64, h as f64);
+        let candidates = guided_fill((&a, ga), (&b, gb), &used, &have, &h_ab, &cfg, &settings);
+        let grid = Grid::new(w as u32, h as u32, &cfg);
+        let mut per_cell = vec![0usize; grid.len()];
+        for (p, _) in &candidates {
+            assert!(p.y > 240.0, "a matched crossing tried again: {p:?}");
+            per_cell[grid.cell(*p)] += 1;
+        }
+        // Sub-frames below the matched half each get crossings, at most twice the
+        // fill; those above it (6 matches each, over the fill of 4) none.
+        let row_h = h as f64 / grid.rows as f64;
+        for (c, &n) in per_cell.iter().enumerate() {
+            let (top, bottom) = (
+                (c / grid.cols) as f64 * row_h,
+                (c / grid.cols + 1) as f64 * row_h,
+            );
+            assert!(n <= 8, "cell {c}: {n}");
+            if bottom <= 240.0 {
+                assert_eq!(n, 0, "cell {c}");
+            }
+            if top >= 240.0 {
+                assert!(n >= 1, "cell {c}");
+            }
+        }
+        let mut positions: Vec<(i64, i64)> = candidates
+            .iter()
+            .map(|(p, _)| (p.x as i64, p.y as i64))
+            .collect();
+        positions.sort_unstable();
+        positions.dedup();
+        assert_eq!(
+            positions.len(),
+            candidates.len(),
+            "a repeated point tried twice"
+        );
+        let refined = refine_matches(
+            (ga, a.width),
+            (gb, b.width),
+            candidates.into_iter(),
+            &h_ab,
+            &settings,
+        );
+        assert!(refined.len() >= 8, "{}", refined.len());
+        for (p, q) in &refined {
+            let err = (*q - (Vec2::new(p[0], p[1]) + t)).norm();
+            assert!(err < 0.1, "{p:?} refined to {q:?}, {err:.3} px off");
+        }
+        // Nothing to fill: no candidates.
+        let off = AlignConfig {
+            fine_fill: 0,
+            ..cfg
+        };
+        assert!(guided_fill((&a, ga), (&b, gb), &used, &have, &h_ab, &off, &settings).is_empty());
     }
 }

@@ -363,6 +363,7 @@ impl Matched {
             coarse_tested: self.coarse_tested,
             fine_pairs: self.fine_pairs,
             fine_rechecked: self.fine_rechecked,
+            fine_guided: self.fine_guided,
             reference_tied: self.reference_tied.clone(),
             with_markers: self.with_markers,
             pieces: self.pieces,

@@ -174,6 +174,11 @@ pub struct AlignSummary {
     /// period off; elsewhere a few per thousand).
     #[serde(default)]
     pub fine_matches_rechecked: usize,
+    /// Matches between frames that the guided fill added where a sub-frame had fewer
+    /// than `fine_fill` (features whose look-alikes elsewhere fail the ratio test,
+    /// found from where the pair's homography puts them), after the recheck.
+    #[serde(default)]
+    pub fine_matches_guided: usize,
     /// Frames anchored to the reference photo by feature matches.
     pub reference_anchored: usize,
     /// Frames with markers.

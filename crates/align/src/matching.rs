@@ -70,6 +70,8 @@ pub struct Registration {
     pub fine_pairs: usize,
     /// Refined matches dropped as off their pair's homography (`fine::recheck`).
     pub fine_rechecked: usize,
+    /// Matches the guided fill added (`fine::guided_fill`), after the recheck.
+    pub fine_guided: usize,
     /// Frames anchored by reference matches, as (stream, frame number).
     pub reference_tied: BTreeSet<(u32, u64)>,
     /// Frames with markers.
@@ -129,6 +131,7 @@ pub struct Matched {
     pub(crate) coarse_tested: usize,
     pub(crate) fine_pairs: usize,
     pub(crate) fine_rechecked: usize,
+    pub(crate) fine_guided: usize,
     pub(crate) reference_tied: BTreeSet<(u32, u64)>,
     pub(crate) with_markers: usize,
     pub(crate) pieces: usize,
@@ -355,7 +358,7 @@ pub fn match_frames(
 
     // Fine matches between connected frames.
     progress.stage("fine matching", (pairs.len() + n) as u64);
-    let rechecked = std::sync::atomic::AtomicUsize::new(0);
+    let counts = FineCounts::default();
     let fine: Vec<_> = pairs
         .par_iter()
         .map(|&(i, j)| {
@@ -368,7 +371,7 @@ pub fn match_frames(
                 &frames[j],
                 known.map(Vec::as_slice),
                 cfg,
-                &rechecked,
+                &counts,
             );
             progress.advance(1);
             r.map(|r| (i, j, r))
@@ -599,7 +602,8 @@ pub fn match_frames(
         verified_pairs,
         coarse_tested,
         fine_pairs,
-        fine_rechecked: rechecked.into_inner(),
+        fine_rechecked: counts.rechecked.into_inner(),
+        fine_guided: counts.guided.into_inner(),
         reference_tied,
         with_markers,
         pieces,

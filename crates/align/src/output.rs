@@ -604,6 +604,7 @@ pub fn write(
         connected_pairs: reg.connectivity.kept.len(),
         fine_pairs: reg.fine_pairs,
         fine_matches_rechecked: reg.fine_rechecked,
+        fine_matches_guided: reg.fine_guided,
         reference_anchored: reg.reference_tied.len(),
         frames_with_markers: reg.with_markers,
         pieces: reg.pieces,

@@ -147,7 +147,7 @@ pub const MIN_TWO_DIMENSIONALITY: f64 = 0.2;
 /// Whether the patch of radius `r` around `c` (patch-image pixels) has gradients in
 /// two directions: the smaller eigenvalue of its structure tensor at least
 /// [`MIN_TWO_DIMENSIONALITY`] of the larger one (and some gradient at all).
-fn two_dimensional(g: &Grey, c: Vec2, r: usize) -> bool {
+pub(crate) fn two_dimensional(g: &Grey, c: Vec2, r: usize) -> bool {
     let (cx, cy) = (c.x.round() as i64, c.y.round() as i64);
     let r = r as i64;
     if cx - r - 1 < 0

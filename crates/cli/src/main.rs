@@ -146,6 +146,12 @@ struct AlignArgs {
     /// catches matches a period off on repetitive texture; a large value turns it off).
     #[arg(long)]
     fine_recheck_px: Option<f64>,
+    /// Where a sub-frame of either frame of a pair has fewer patch-refined matches than
+    /// this, the pair's other features there are predicted through the pair's
+    /// homography and refined (default 8; 0 turns it off; helps repetitive texture,
+    /// whose alike features the ratio test rejects).
+    #[arg(long)]
+    fine_fill: Option<usize>,
     /// Sub-frame grid as COLSxROWS (default: the paper's 5x11 at 2160x3840, scaled).
     #[arg(long)]
     subframes: Option<String>,
@@ -292,6 +298,9 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
     if let Some(v) = a.fine_recheck_px {
         c.fine_recheck_px = v;
     }
+    if let Some(v) = a.fine_fill {
+        c.fine_fill = v;
+    }
     if let Some(s) = &a.subframes {
         let parts: Vec<&str> = s.split(['x', 'X']).collect();
         let parsed = match parts.as_slice() {
@@ -403,9 +412,10 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     say!("wrote {}", s.out.display());
     say!("frames: {}", f.describe());
     say!(
-        "matching: {} coarse pairs tested, {} connected, {} fine pairs{}; {} frames see markers, {} anchored to the reference photo{}",
+        "matching: {} coarse pairs tested, {} connected, {} fine pairs{}{}; {} frames see markers, {} anchored to the reference photo{}",
         s.coarse_pairs_tested, s.connected_pairs, s.fine_pairs,
         if s.fine_matches_rechecked > 0 { format!(" ({} refined matches dropped as off their pair's homography)", s.fine_matches_rechecked) } else { String::new() },
+        if s.fine_matches_guided > 0 { format!(", {} matches found guided by their pair's homography", s.fine_matches_guided) } else { String::new() },
         s.frames_with_markers, s.reference_anchored,
         if s.pieces > 1 { format!("; the frames form {} pieces, each tied to the plane by the reference photo or markers", s.pieces) } else { String::new() }
     );

@@ -323,6 +323,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         fine_min_inliers: None,
         fine_inlier_px: None,
         fine_recheck_px: None,
+        fine_fill: None,
         subframes: None,
         all_pairs: false,
         fixed_exposure: a.fixed_exposure,
