@@ -187,12 +187,74 @@ pub(crate) fn apply_self_check(
             cfg.max_shift_mm
         )));
     }
+    let mut drop: std::collections::HashSet<usize> = bad.iter().map(|c| c.kept_index).collect();
+    let frames: Vec<(u32, u64)> = reg.frames.iter().map(|f| (f.stream, f.index)).collect();
+    let stranded = stranded_frames(&frames, &reg.verified_pairs, &drop);
+    let also = if stranded.is_empty() {
+        String::new()
+    } else {
+        let names: Vec<String> = stranded
+            .iter()
+            .filter_map(|&k| reg.frames.get(k).map(|f| f.index.to_string()))
+            .collect();
+        format!(
+            ", and with them frame(s) {} whose only links to other frames were to those (their maps were solved with them)",
+            names.join(", ")
+        )
+    };
+    for &k in &stranded {
+        if let Some(f) = reg.frames.get(k) {
+            if let Some(t) = trace.frame_mut(f.stream, f.index) {
+                t.fate = trace::Fate::Inconsistent;
+            }
+        }
+    }
     warnings.push(format!(
-        "{what}; these frames were dropped (self-check against the reference photo)"
+        "{what}; these frames were dropped (self-check against the reference photo){also}"
     ));
-    let drop: std::collections::HashSet<usize> = bad.iter().map(|c| c.kept_index).collect();
+    drop.extend(stranded);
     let _ = remove_frames(reg, &drop, |d, n| d.inconsistent += n);
     Ok(())
+}
+
+/// Kept flash frames (kept indices into `frames`, as (stream, video frame number), not
+/// in `drop`) all of whose verified links (`pairs`: video frame numbers of the flash
+/// stream) to other kept frames lead to frames in `drop`: the global solve fitted
+/// their maps to frames the self-check found off, so what they rest on is gone with
+/// them. Frames without links keep what anchors them.
+///
+/// Measured: on a Mitsuba-rendered tiles capture (`xi3`, default frame step) the
+/// self-check dropped two of a piece of three frames (1.1-1.5 mm off); the third,
+/// left alone and tied by its own reference-photo matches too, was 3.0 output px
+/// off at its 95th percentile (`docs/BENCHMARKS.md`, session 38).
+pub(crate) fn stranded_frames(
+    frames: &[(u32, u64)],
+    pairs: &[(u64, u64, usize)],
+    drop: &std::collections::HashSet<usize>,
+) -> Vec<usize> {
+    use std::collections::HashMap;
+    let kept: HashMap<u64, usize> = frames
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.0 == 0)
+        .map(|(k, f)| (f.1, k))
+        .collect();
+    let mut links: HashMap<usize, Vec<usize>> = HashMap::new();
+    for &(a, b, _) in pairs {
+        if let (Some(&ka), Some(&kb)) = (kept.get(&a), kept.get(&b)) {
+            links.entry(ka).or_default().push(kb);
+            links.entry(kb).or_default().push(ka);
+        }
+    }
+    let mut out: Vec<usize> = links
+        .iter()
+        .filter(|(k, partners)| {
+            !drop.contains(k) && !partners.is_empty() && partners.iter().all(|p| drop.contains(p))
+        })
+        .map(|(&k, _)| k)
+        .collect();
+    out.sort_unstable();
+    out
 }
 
 /// Remove the kept frames whose kept index is in `drop` from `reg`, counting them in
@@ -331,4 +393,42 @@ pub(crate) fn check_baseline(
         )));
     }
     Ok(sweep)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::collections::HashSet;
+
+    #[test]
+    fn a_frame_linked_only_to_dropped_frames_is_stranded() {
+        // Kept: flash frames 0, 4, 10, 56, 65, 69, 89 and a second-stream frame 65.
+        let frames = [
+            (0, 0),
+            (0, 4),
+            (0, 10),
+            (0, 56),
+            (0, 65),
+            (0, 69),
+            (0, 89),
+            (1, 65),
+        ];
+        let pairs = [
+            (0, 4, 40),
+            (4, 10, 35),
+            (56, 65, 30),
+            (65, 69, 25),
+            (10, 56, 22),
+            // A link to a frame no longer kept does not hold a frame.
+            (89, 95, 50),
+        ];
+        // 56 and 69 dropped: 65 rests on them alone; 10 keeps 4.
+        let drop: HashSet<usize> = [3, 5].into_iter().collect();
+        assert_eq!(stranded_frames(&frames, &pairs, &drop), vec![4]);
+        // Nothing dropped, nothing stranded; 89 (no kept partner) never is.
+        assert!(stranded_frames(&frames, &pairs, &HashSet::new()).is_empty());
+        // 65 dropped alone: 69 was linked to it only, 56 to 10 as well.
+        let drop: HashSet<usize> = [4].into_iter().collect();
+        assert_eq!(stranded_frames(&frames, &pairs, &drop), vec![5]);
+    }
 }
