@@ -564,28 +564,15 @@ mod tests {
     }
 
     fn frame(grey: Grey, points: Vec<[f32; 2]>) -> FrameData {
-        let n = points.len();
-        FrameData {
-            index: 0,
-            stream: 0,
-            file: None,
-            time_s: 0.0,
-            width: grey.width as u32,
-            height: grey.height as u32,
-            blur: 1.0,
-            markers: Vec::new(),
-            // Every crossing's descriptor alike: the ratio test would take none.
-            coarse: Features {
+        // Every crossing's descriptor alike: the ratio test would take none.
+        let descriptors = vec![0.0; 128 * points.len()];
+        FrameData::for_test(
+            grey,
+            Features {
                 points,
-                descriptors: vec![0.0; 128 * n],
+                descriptors,
             },
-            fine: Features {
-                points: Vec::new(),
-                descriptors: Vec::new(),
-            },
-            grey: Some(std::sync::Arc::new(grey)),
-            thumb: ImageU8::new(1, 1, 1),
-        }
+        )
     }
 
     #[test]

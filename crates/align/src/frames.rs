@@ -54,6 +54,27 @@ pub struct FrameData {
     pub thumb: ImageU8,
 }
 
+#[cfg(test)]
+impl FrameData {
+    /// A frame for unit tests: its patch image and coarse features, the rest empty.
+    pub(crate) fn for_test(grey: Grey, coarse: Features) -> Self {
+        Self {
+            index: 0,
+            stream: 0,
+            file: None,
+            time_s: 0.0,
+            width: grey.width as u32,
+            height: grey.height as u32,
+            blur: 0.0,
+            markers: Vec::new(),
+            coarse,
+            fine: Features::default(),
+            grey: Some(Arc::new(grey)),
+            thumb: ImageU8::new(1, 1, 3),
+        }
+    }
+}
+
 /// Map feature coordinates from an image scaled by `s` back to full resolution.
 fn unscale(mut f: Features, s: f64) -> Features {
     for p in &mut f.points {

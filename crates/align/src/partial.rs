@@ -365,20 +365,7 @@ mod tests {
     }
 
     fn frame(grey: Grey) -> FrameData {
-        FrameData {
-            index: 0,
-            stream: 0,
-            file: None,
-            time_s: 0.0,
-            width: grey.width as u32,
-            height: grey.height as u32,
-            blur: 0.0,
-            markers: Vec::new(),
-            coarse: Default::default(),
-            fine: Default::default(),
-            grey: Some(std::sync::Arc::new(grey)),
-            thumb: svbrdf_core::image::ImageU8::new(1, 1, 3),
-        }
+        FrameData::for_test(grey, Default::default())
     }
 
     /// The corners of the test marker (1.2 cm) with its top-left at (mx, my), cm.
