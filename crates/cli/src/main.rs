@@ -148,8 +148,9 @@ struct AlignArgs {
     fine_recheck_px: Option<f64>,
     /// Where a sub-frame of either frame of a pair has fewer patch-refined matches than
     /// this, the pair's other features there are predicted through the pair's
-    /// homography and refined (default 0: off; 8 helps flat repetitive texture such as
-    /// plain tiles, whose alike features the ratio test rejects; docs/RELIABILITY.md).
+    /// homography and refined (default 8; 0 turns it off; helps flat repetitive texture
+    /// such as plain tiles, whose alike features the ratio test rejects; not used with
+    /// a second video; docs/RELIABILITY.md).
     #[arg(long)]
     fine_fill: Option<usize>,
     /// Sub-frame grid as COLSxROWS (default: the paper's 5x11 at 2160x3840, scaled).
