@@ -367,7 +367,7 @@ pub fn match_frames(
         fine_fill: 0,
         ..cfg.clone()
     };
-    let cfg = if frames.len() > n_flash {
+    let pair_cfg = if frames.len() > n_flash {
         &without_fill
     } else {
         cfg
@@ -383,7 +383,7 @@ pub fn match_frames(
                 &frames[i],
                 &frames[j],
                 known.map(Vec::as_slice),
-                cfg,
+                pair_cfg,
                 &counts,
             );
             progress.advance(1);
