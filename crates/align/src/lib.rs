@@ -579,6 +579,9 @@ fn register_and_write(
         } else {
             String::new()
         };
+        if let Some(b) = sup.bent() {
+            why += &format!(" ({b}, up to millimetres off)");
+        }
         if result.drops.unconfirmed > 0 {
             why += &format!(
                 " ({} frames placed by plane ties were left out: the reference photo's texture confirmed them over less than half of their features, so parts of them may lie millimetres off)",
@@ -586,7 +589,7 @@ fn register_and_write(
             );
         }
         return Err(AlignError::Video(format!(
-            "only {:.0}% of the region is seen by at least {COVERAGE_VIEWS} registered frames (expected at least {:.0}%){why}; thin: {missed}. Film again sweeping over that part too, more slowly, or pass --region to capture less",
+            "only {:.1}% of the region is seen by at least {COVERAGE_VIEWS} registered frames (expected at least {:.0}%){why}; thin: {missed}. Film again sweeping over that part too, more slowly, or pass --region to capture less",
             100.0 * covered,
             100.0 * MIN_COVERAGE
         )));

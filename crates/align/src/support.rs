@@ -44,12 +44,21 @@ pub struct SupportSummary {
     pub frames_dropped: Vec<u64>,
     /// Kept frames that lost sub-frames: (video frame, sub-frames kept, sub-frames).
     pub partial_frames: Vec<(u64, usize, usize)>,
+    /// Kept frames that the self-check showed bent at an edge and that lost the
+    /// sub-frames there (`checks::trim_bent_parts`): (video frame, sub-frames left
+    /// out, sub-frames it had).
+    #[serde(default)]
+    pub bent_trimmed: Vec<(u64, usize, usize)>,
 }
 
 impl SupportSummary {
     /// One line for people; `None` when nothing was removed.
     pub fn describe(&self) -> Option<String> {
-        (self.removed > 0).then(|| {
+        let bent = self.bent().map(|b| format!("; {b}")).unwrap_or_default();
+        if self.removed == 0 {
+            return self.bent();
+        }
+        Some({
             let dropped = if self.frames_dropped.is_empty() {
                 String::new()
             } else {
@@ -60,11 +69,24 @@ impl SupportSummary {
                 )
             };
             format!(
-                "{} of {} sub-frames left out: no correspondences of their own fixed their maps (noise gain above {}){dropped}; {} kept frames are partial",
+                "{} of {} sub-frames left out: no correspondences of their own fixed their maps (noise gain above {}){dropped}; {} kept frames are partial{bent}",
                 self.removed,
                 self.subframes,
                 self.max_noise_gain,
                 self.partial_frames.len()
+            )
+        })
+    }
+
+    /// The sub-frames the self-check left out as bent at an edge, in words; `None`
+    /// when it left out none.
+    pub fn bent(&self) -> Option<String> {
+        (!self.bent_trimmed.is_empty()).then(|| {
+            let n: usize = self.bent_trimmed.iter().map(|b| b.1).sum();
+            let frames: Vec<u64> = self.bent_trimmed.iter().map(|b| b.0).collect();
+            format!(
+                "{n} sub-frames of frame(s) {} left out: the self-check showed them bent at an edge",
+                list(&frames)
             )
         })
     }
@@ -311,9 +333,11 @@ mod tests {
             removed: 30,
             frames_dropped: (1..=10).collect(),
             partial_frames: vec![(20, 10, 15)],
+            bent_trimmed: vec![(24, 4, 15), (30, 2, 15)],
         };
         let line = s.describe().unwrap_or_default();
         assert!(line.contains("30 of 100"), "{line}");
+        assert!(line.ends_with("6 sub-frames of frame(s) 24, 30 left out: the self-check showed them bent at an edge"), "{line}");
         assert!(line.contains("1, 2, 3, 4, 5, 6, 7, 8 and 2 more"), "{line}");
         assert!(SupportSummary::default().describe().is_none());
     }

@@ -22,12 +22,14 @@ use svbrdf_core::plane::{PlaneGrid, Region};
 
 mod consensus;
 mod plane_image;
+mod trim;
 
 pub use consensus::agreeing_blocks;
 #[cfg(test)]
 pub(crate) use consensus::tests::lattice;
 use consensus::{consensus, warp};
 use plane_image::{best_shift, parabola, rectify, PlaneImage, MIN_VALID};
+pub use trim::{bent_blocks, leave_out_bent, on_blocks, MAX_BEND_MM};
 
 /// Fine cells per cm of the comparison grid.
 const FINE_PX_PER_CM: f64 = 10.0;
@@ -343,6 +345,12 @@ pub const EDGE_PX: f64 = 2.0;
 /// measured (4K captures put 2 output pixels at 0.15-0.2 mm).
 pub const EDGE_FLOOR_MM: f64 = 0.3;
 
+/// [`EDGE_PX`] output pixels at `px_per_cm`, at least [`EDGE_FLOOR_MM`], in mm
+/// (`None` without a scale).
+pub fn edge_mm(px_per_cm: f64) -> Option<f64> {
+    (px_per_cm > 0.0).then(|| (10.0 * EDGE_PX / px_per_cm).max(EDGE_FLOOR_MM))
+}
+
 /// Frames the self-check verified (their agreeing blocks' median is within the limit)
 /// but one of whose matched blocks lies more than [`EDGE_PX`] output pixels (at
 /// `px_per_cm`; at least [`EDGE_FLOOR_MM`]) from where the reference photo shows the
@@ -354,10 +362,7 @@ pub const EDGE_FLOOR_MM: f64 = 0.3;
 /// matched a repeated patch 24-54 mm away or lie 0.7-1.1 mm off alone (session 33).
 /// One line for people, or `None`.
 pub fn edge_disagreement(checks: &[FrameCheck], limit_mm: f64, px_per_cm: f64) -> Option<String> {
-    if !(px_per_cm > 0.0) {
-        return None;
-    }
-    let edge_mm = (10.0 * EDGE_PX / px_per_cm).max(EDGE_FLOOR_MM);
+    let edge_mm = edge_mm(px_per_cm)?;
     let off: Vec<(u64, f64)> = checks
         .iter()
         .filter(|c| c.offset_mm().is_some() && !c.inconsistent(limit_mm))
