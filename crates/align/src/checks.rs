@@ -175,13 +175,6 @@ pub(crate) fn apply_self_check(
         warnings.push(w);
     }
     let mut drop: std::collections::HashSet<usize> = trimmed.into_iter().collect();
-    for &k in &drop {
-        if let Some(f) = reg.frames.get(k) {
-            if let Some(t) = trace.frame_mut(f.stream, f.index) {
-                t.fate = trace::Fate::Inconsistent;
-            }
-        }
-    }
     if let Some(what) = selfcheck::disagreement(checks, cfg.max_shift_mm) {
         for c in &bad {
             if let Some(t) = trace.frame_mut(c.stream, c.frame) {
@@ -201,31 +194,36 @@ pub(crate) fn apply_self_check(
         let also = if stranded.is_empty() {
             String::new()
         } else {
-            let names: Vec<String> = stranded
-                .iter()
-                .filter_map(|&k| reg.frames.get(k).map(|f| f.index.to_string()))
-                .collect();
             format!(
                 ", and with them frame(s) {} whose only links to other frames were to those (their maps were solved with them)",
-                names.join(", ")
+                frame_names(reg, &stranded)
             )
         };
-        for &k in &stranded {
-            if let Some(f) = reg.frames.get(k) {
-                if let Some(t) = trace.frame_mut(f.stream, f.index) {
-                    t.fate = trace::Fate::Inconsistent;
-                }
-            }
-        }
         warnings.push(format!(
             "{what}; these frames were dropped (self-check against the reference photo){also}"
         ));
         drop.extend(stranded);
     }
     if !drop.is_empty() {
+        for &k in &drop {
+            if let Some(f) = reg.frames.get(k) {
+                if let Some(t) = trace.frame_mut(f.stream, f.index) {
+                    t.fate = trace::Fate::Inconsistent;
+                }
+            }
+        }
         let _ = remove_frames(reg, &drop, |d, n| d.inconsistent += n);
     }
     Ok(())
+}
+
+/// The video frame numbers of kept frames (kept indices), comma-separated.
+fn frame_names(reg: &matching::Registration, kept: &[usize]) -> String {
+    let names: Vec<String> = kept
+        .iter()
+        .filter_map(|&k| reg.frames.get(k).map(|f| f.index.to_string()))
+        .collect();
+    names.join(", ")
 }
 
 /// Leave out the sub-frames of the verified, consistent frames that the self-check
@@ -289,13 +287,9 @@ pub(crate) fn trim_bent_parts(
     let dropped = if drop.is_empty() {
         String::new()
     } else {
-        let names: Vec<String> = drop
-            .iter()
-            .filter_map(|&k| reg.frames.get(k).map(|f| f.index.to_string()))
-            .collect();
         format!(
             "; frame(s) {}, left with too few, were dropped",
-            names.join(", ")
+            frame_names(reg, &drop)
         )
     };
     let said = format!(
