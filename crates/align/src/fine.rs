@@ -321,6 +321,10 @@ pub(crate) fn fine_pair_patch(
 /// Mitsuba-rendered tiles keep the gain (`docs/BENCHMARKS.md`, session 38).
 pub const GUIDED_MIN_NCC: f32 = 0.95;
 
+/// Guided matches are sought only in video whose long side is at most this, pixels
+/// (see `matching::match_frames`).
+pub const FILL_MAX_LONG_SIDE: u32 = 1920;
+
 /// Candidates for guided matches of the pair (a, b), as (a px, predicted b px): a's
 /// coarse features that are not among the matches used (`used`, indices into
 /// `a.coarse`), predicted in b through the pair's homography `h_ab`, lying in a

@@ -363,11 +363,20 @@ pub fn match_frames(
     // left the flash video's alignment as it was but moved the fit's diffuse RMSE from
     // 0.021 to 0.051, also when kept off the pairs with the second stream
     // (docs/BENCHMARKS.md, session 38).
+    // Nor on video over FILL_MAX_LONG_SIDE: measured helpful at 960 px (Mitsuba tiles)
+    // and harmful at 3840 px (the `paper` preset: p95 0.425 -> 0.476 px, worst frame
+    // 0.713 -> 0.948 px, also at `fine_fill` 4; session 39).
+    let long_side = frames
+        .iter()
+        .take(n_flash)
+        .map(|f| f.width.max(f.height))
+        .max()
+        .unwrap_or(0);
     let without_fill = AlignConfig {
         fine_fill: 0,
         ..cfg.clone()
     };
-    let pair_cfg = if frames.len() > n_flash {
+    let pair_cfg = if frames.len() > n_flash || long_side > crate::fine::FILL_MAX_LONG_SIDE {
         &without_fill
     } else {
         cfg
