@@ -74,8 +74,9 @@ pub struct AlignConfig {
     /// test rejects features that look alike, as every grout crossing of a tiled floor
     /// does). Correspondences per sub-frame; 0 turns it off. Not used on two-camera
     /// captures (measured to worsen their fit; docs/BENCHMARKS.md, session 38) nor on
-    /// video whose long side exceeds 1920 px (`fine::FILL_MAX_LONG_SIDE`; measured to
-    /// worsen the `paper` preset at 4K, session 39).
+    /// frames (video or still photos) whose long side exceeds 1920 px
+    /// (`fine::FILL_MAX_LONG_SIDE`; measured to worsen the `paper` preset at 4K,
+    /// session 39).
     #[serde(default = "default_fine_fill")]
     pub fine_fill: usize,
     /// Sub-frame grid (columns, rows); default scales the paper's 5 x 11 at 2160 x 3840.

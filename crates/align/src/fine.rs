@@ -321,8 +321,8 @@ pub(crate) fn fine_pair_patch(
 /// Mitsuba-rendered tiles keep the gain (`docs/BENCHMARKS.md`, session 38).
 pub const GUIDED_MIN_NCC: f32 = 0.95;
 
-/// Guided matches are sought only in video whose long side is at most this, pixels
-/// (see `matching::match_frames`).
+/// Guided matches are sought only among frames (video or still photos) whose long
+/// side is at most this, pixels (see `matching::match_frames`).
 pub const FILL_MAX_LONG_SIDE: u32 = 1920;
 
 /// Candidates for guided matches of the pair (a, b), as (a px, predicted b px): a's

@@ -54,10 +54,11 @@ pub struct SupportSummary {
 impl SupportSummary {
     /// One line for people; `None` when nothing was removed.
     pub fn describe(&self) -> Option<String> {
-        let bent = self.bent().map(|b| format!("; {b}")).unwrap_or_default();
+        let bent = self.bent();
         if self.removed == 0 {
-            return self.bent();
+            return bent;
         }
+        let bent = bent.map(|b| format!("; {b}")).unwrap_or_default();
         Some({
             let dropped = if self.frames_dropped.is_empty() {
                 String::new()
@@ -340,5 +341,10 @@ mod tests {
         assert!(line.ends_with("6 sub-frames of frame(s) 24, 30 left out: the self-check showed them bent at an edge"), "{line}");
         assert!(line.contains("1, 2, 3, 4, 5, 6, 7, 8 and 2 more"), "{line}");
         assert!(SupportSummary::default().describe().is_none());
+        let only_bent = SupportSummary {
+            bent_trimmed: vec![(24, 4, 15)],
+            ..Default::default()
+        };
+        assert_eq!(only_bent.describe(), only_bent.bent());
     }
 }

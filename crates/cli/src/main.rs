@@ -150,7 +150,7 @@ struct AlignArgs {
     /// this, the pair's other features there are predicted through the pair's
     /// homography and refined (default 8; 0 turns it off; helps flat repetitive texture
     /// such as plain tiles, whose alike features the ratio test rejects; not used with
-    /// a second video nor on video over 1920 pixels on its long side;
+    /// a second video nor on frames or photos over 1920 pixels on their long side;
     /// docs/RELIABILITY.md).
     #[arg(long)]
     fine_fill: Option<usize>,
