@@ -350,25 +350,40 @@ impl ObservationBuilder {
         })
     }
 
-    /// Plane-grid rows and columns that can see frame `k` (from its border's footprint).
+    /// Plane-grid rows and columns that can see frame `k`: from its sub-frames' plane
+    /// bounding boxes (their rectangles need not reach the frame's border: alignment
+    /// leaves out or cuts back sub-frames it could not fix), or a camera frame's border.
     fn footprint(&self, k: usize) -> Option<(usize, usize, usize, usize)> {
-        let (w, h) = self.sizes[k];
-        let (w, h) = (f64::from(w) - 0.5, f64::from(h) - 0.5);
         let mut lo = Vec2::new(f64::INFINITY, f64::INFINITY);
         let mut hi = -lo;
-        let n = 32;
-        for i in 0..=n {
-            let t = i as f64 / n as f64;
-            for p in [
-                Vec2::new(-0.5 + t * (w + 0.5), -0.5),
-                Vec2::new(-0.5 + t * (w + 0.5), h),
-                Vec2::new(-0.5, -0.5 + t * (h + 0.5)),
-                Vec2::new(w, -0.5 + t * (h + 0.5)),
-            ] {
-                if let Some(q) = self.mappings[k].pixel_to_plane(p) {
-                    let g = self.grid.to_pixel(q);
-                    lo = lo.inf(&g);
-                    hi = hi.sup(&g);
+        let mut add = |q: Vec2| {
+            let g = self.grid.to_pixel(q);
+            lo = lo.inf(&g);
+            hi = hi.sup(&g);
+        };
+        match &self.mappings[k] {
+            PreparedMapping::Homographies(subs) => {
+                for b in subs.iter().map(|s| s.plane_bbox) {
+                    add(Vec2::new(b[0], b[1]));
+                    add(Vec2::new(b[2], b[3]));
+                }
+            }
+            camera => {
+                let (w, h) = self.sizes[k];
+                let (w, h) = (f64::from(w) - 0.5, f64::from(h) - 0.5);
+                let n = 32;
+                for i in 0..=n {
+                    let t = i as f64 / n as f64;
+                    for p in [
+                        Vec2::new(-0.5 + t * (w + 0.5), -0.5),
+                        Vec2::new(-0.5 + t * (w + 0.5), h),
+                        Vec2::new(-0.5, -0.5 + t * (h + 0.5)),
+                        Vec2::new(w, -0.5 + t * (h + 0.5)),
+                    ] {
+                        if let Some(q) = camera.pixel_to_plane(p) {
+                            add(q);
+                        }
+                    }
                 }
             }
         }
@@ -625,6 +640,77 @@ pub(crate) fn rendered_in_room(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use svbrdf_core::capture::{
+        Frame, FrameMapping, Source, SourceKind, SubFrame, CAPTURE_FORMAT, CAPTURE_VERSION,
+    };
+    use svbrdf_core::maps::Encoding;
+    use svbrdf_core::plane::Region;
+
+    /// A 200 x 100 frame looking straight down at 10 px per cm, whose one sub-frame
+    /// is `rect`.
+    fn frame_with(rect: [f64; 4]) -> RegisteredCapture {
+        let region = Region {
+            x_min: 0.0,
+            x_max: 20.0,
+            y_min: 0.0,
+            y_max: 10.0,
+        };
+        RegisteredCapture {
+            format: CAPTURE_FORMAT.into(),
+            version: CAPTURE_VERSION,
+            producer: "test".into(),
+            units: "cm".into(),
+            region,
+            px_per_cm: 10.0,
+            light_intensity: None,
+            sources: vec![Source {
+                kind: SourceKind::Video,
+                path: "v.mp4".into(),
+                encoding: Encoding::Srgb,
+                stream: 0,
+                video: None,
+            }],
+            frames: vec![Frame {
+                id: 0,
+                source: 0,
+                frame_index: Some(0),
+                image: None,
+                time_s: None,
+                width: 200,
+                height: 100,
+                mapping: FrameMapping::Homographies {
+                    subframes: vec![SubFrame {
+                        rect,
+                        plane_from_pixel: [[0.1, 0.0, 0.05], [0.0, -0.1, 9.95], [0.0, 0.0, 1.0]],
+                    }],
+                },
+                camera_position: [10.0, 5.0, 10.0],
+                light_position: [10.0, 5.0, 10.0],
+                exposure_gain: None,
+            }],
+        }
+    }
+
+    #[test]
+    fn a_frame_whose_sub_frames_stop_short_of_its_border_is_still_observed() {
+        let full = frame_with([-0.5, -0.5, 199.5, 99.5]);
+        let grid = PlaneGrid::new(full.region, 10.0).unwrap();
+        let cfg = FitConfig::default();
+        let b = ObservationBuilder::new(&full, grid.clone(), &cfg).unwrap();
+        assert_eq!(b.footprint(0), Some((0, 200, 0, 100)));
+        // Alignment cut every edge back by 20 px: the frame still sees the middle.
+        let cut = frame_with([20.0, 20.0, 179.0, 79.0]);
+        let b = ObservationBuilder::new(&cut, grid, &cfg).unwrap();
+        let (c0, c1, r0, r1) = b.footprint(0).unwrap();
+        assert!(
+            c0 <= 20 && c1 >= 180 && r0 <= 20 && r1 >= 80,
+            "{c0} {c1} {r0} {r1}"
+        );
+        assert!(
+            c0 >= 15 && r0 >= 15,
+            "the cut border is not seen: {c0} {r0}"
+        );
+    }
 
     #[test]
     fn transpose_matches_a_serial_scatter() {
