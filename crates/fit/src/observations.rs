@@ -696,7 +696,7 @@ mod tests {
         let full = frame_with([-0.5, -0.5, 199.5, 99.5]);
         let grid = PlaneGrid::new(full.region, 10.0).unwrap();
         let cfg = FitConfig::default();
-        let b = ObservationBuilder::new(&full, grid.clone(), &cfg).unwrap();
+        let b = ObservationBuilder::new(&full, grid, &cfg).unwrap();
         assert_eq!(b.footprint(0), Some((0, 200, 0, 100)));
         // Alignment cut every edge back by 20 px: the frame still sees the middle.
         let cut = frame_with([20.0, 20.0, 179.0, 79.0]);
