@@ -119,6 +119,15 @@ pub struct AlignConfig {
     /// those above were 0.3-1.1 mm off; on brushed metal, 1-7 cm. Unitless, > 0.
     #[serde(default = "default_max_noise_gain")]
     pub max_noise_gain: f64,
+    /// Largest noise gain (as `max_noise_gain`) at which a sub-frame on the frame's
+    /// edge is used out to that edge: beyond it the sub-frame's map is extrapolated
+    /// past its correspondences, and it is used only up to where the gain falls to
+    /// this (at most to the middle of its cell; `support::apply_edge_cuts`). 1.5: on
+    /// the Mitsuba-rendered tiles sub-frames with gains of 2-4 were over 1 output px
+    /// off in 30-45% of cases, 1-2 in 12-17%, under 1 in 1-3% (docs/BENCHMARKS.md,
+    /// session 40). 0 turns it off. Unitless, >= 0.
+    #[serde(default = "default_edge_noise_gain")]
+    pub edge_noise_gain: f64,
     /// Gauss-Newton iterations of the global solve.
     pub iterations: usize,
     /// At most this many fine pairs per frame (its strongest coarse connections; the
@@ -188,6 +197,7 @@ impl Default for AlignConfig {
             reference_weight: 1.0,
             overlap_weight: 4.0,
             max_noise_gain: default_max_noise_gain(),
+            edge_noise_gain: default_edge_noise_gain(),
             iterations: 8,
             max_pairs_per_frame: 8,
             all_pairs: false,
@@ -207,6 +217,10 @@ impl Default for AlignConfig {
 
 fn default_max_noise_gain() -> f64 {
     4.0
+}
+
+fn default_edge_noise_gain() -> f64 {
+    1.5
 }
 
 /// 8 px at 3840 (2 px at 960): on Mitsuba-rendered tiles it keeps 96% of the right
@@ -329,6 +343,13 @@ impl AlignConfig {
                 "largest sub-frame noise gain",
                 self.max_noise_gain,
                 "a finite number > 0 (default 4; larger keeps more extrapolated sub-frames)",
+            ));
+        }
+        if !(self.edge_noise_gain >= 0.0 && self.edge_noise_gain.is_finite()) {
+            return Err(AlignError::invalid(
+                "sub-frame noise gain at the frame's edge",
+                self.edge_noise_gain,
+                "a finite number >= 0 (default 1.5; 0 uses every sub-frame out to the frame's edge)",
             ));
         }
         if self.marker_views > 8 {

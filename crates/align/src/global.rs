@@ -177,20 +177,33 @@ impl Matched {
             .iter()
             .flat_map(|&i| std::iter::repeat_n(i, grids[i].len()))
             .collect();
-        let gains = crate::support::noise_gains(&solved, &cons, &ranges, |b| {
+        // Noise gains at each sub-frame's corners (its support), then along the frame's
+        // edges it lies on (how far towards them its map is used).
+        let probed = crate::support::noise_gains_at(&solved, &cons, &ranges, |b| {
             let i = owner[b];
             let [x0, y0, x1, y1] = grids[i].rect(b - slot[&i]);
             [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]
                 .into_iter()
-                .map(|(x, y)| norm(i, Vec2::new(x, y)))
+                .map(|(x, y)| Vec2::new(x, y))
+                .chain(grids[i].edge_probes(b - slot[&i]))
+                .map(|p| norm(i, p))
                 .collect()
         });
+        let gains: Vec<f64> = probed
+            .iter()
+            .map(|g| {
+                g.as_ref().map_or(f64::INFINITY, |g| {
+                    g.iter().take(4).fold(0.0, |a, b| a.max(*b))
+                })
+            })
+            .collect();
         progress.finish();
         lap("global solve");
 
         // Back to pixel coordinates, poses from the centre sub-frame, region check.
         let mut support = crate::support::SupportSummary {
             max_noise_gain: cfg.max_noise_gain,
+            edge_noise_gain: cfg.edge_noise_gain,
             ..Default::default()
         };
         // Registered frames with a plausible pose: (frame, sub-frame maps, pose).
@@ -206,6 +219,16 @@ impl Matched {
                 0.5 * (f64::from(width) - 1.0),
                 0.5 * (f64::from(height) - 1.0),
             ));
+            // Where each sub-frame's map is used in the end (`support::apply_edge_cuts`,
+            // after the checks, which judge the whole frame).
+            let cuts: Vec<[f64; 4]> = (0..grid.len())
+                .map(|c| match &probed[slot[&i] + c] {
+                    Some(g) if cfg.edge_noise_gain > 0.0 => {
+                        grid.cut_rect(c, g.get(4..).unwrap_or(&[]), cfg.edge_noise_gain)
+                    }
+                    _ => grid.rect(c),
+                })
+                .collect();
             let blocks: Vec<([f64; 4], Mat3)> = (0..grid.len())
                 .map(|c| {
                     let h = solved[slot[&i] + c] * nrms[i];
@@ -267,6 +290,14 @@ impl Matched {
             }
             let centre_fit = Homography::from_correspondences(&plane_pts, &img_pts).ok();
             let centre_block = supported[centre_cell].then_some(blocks[centre_cell].1);
+            let cuts: Vec<crate::matching::EdgeCut> = blocks
+                .iter()
+                .zip(cuts)
+                .zip(&supported)
+                .filter(|(_, s)| **s)
+                .map(|((b, cut), _)| (b.0, cut))
+                .filter(|(full, cut)| full != cut)
+                .collect();
             let blocks: Vec<([f64; 4], Mat3)> = blocks
                 .into_iter()
                 .zip(&supported)
@@ -303,7 +334,7 @@ impl Matched {
                 trace.set_fate(&frames[i], Fate::Outside);
                 continue;
             }
-            posed.push((i, blocks, pose));
+            posed.push((i, blocks, cuts, pose));
         }
         // Light positions: the flash camera's own, and for the second stream the flash
         // camera's at the synchronised time, interpolated between the nearest kept flash
@@ -311,13 +342,14 @@ impl Matched {
         let offset = Vec3::from(cfg.camera.flash_offset_cm);
         let mut flash_track: Vec<(f64, Vec3)> = posed
             .iter()
-            .filter(|(i, _, _)| frames[*i].stream == 0)
-            .map(|(i, _, p)| (frames[*i].time_s, p.camera_to_world(offset)))
+            .filter(|(i, _, _, _)| frames[*i].stream == 0)
+            .map(|(i, _, _, p)| (frames[*i].time_s, p.camera_to_world(offset)))
             .collect();
         flash_track.sort_by(|a, b| a.0.total_cmp(&b.0));
         let (mut out_frames, mut mappings, mut poses, mut lights) =
             (Vec::new(), Vec::new(), Vec::new(), Vec::new());
-        for (i, blocks, pose) in posed {
+        let mut edge_cuts = HashMap::new();
+        for (i, blocks, cuts, pose) in posed {
             let light = if frames[i].stream == 0 {
                 Some(pose.camera_to_world(offset))
             } else {
@@ -331,6 +363,9 @@ impl Matched {
                 continue;
             };
             trace.set_fate(&frames[i], Fate::Kept);
+            if !cuts.is_empty() {
+                edge_cuts.insert((frames[i].stream, frames[i].index), cuts);
+            }
             out_frames.push(frames[i].clone());
             mappings.push(blocks);
             poses.push(pose);
@@ -370,6 +405,7 @@ impl Matched {
             per_frame_anchors: self.per_frame_anchors.clone(),
             solve: report,
             support,
+            edge_cuts,
             marker_hunt: None,
             plane_ties: None,
             marker_corners: None,

@@ -567,7 +567,30 @@ fn register_and_write(
             )));
         }
     }
-    let (covered, missed) = coverage(&result, region)?;
+    // The sub-frames along the frames' edges are used only where their maps are fixed,
+    // unless that alone takes the coverage below the minimum (then their edges are kept,
+    // with a warning: a capture that a few pixels' doubt at frame edges would refuse).
+    let uncut = result.mappings.clone();
+    support::apply_edge_cuts(&mut result);
+    let (mut covered, mut missed) = coverage(&result, region)?;
+    if covered < MIN_COVERAGE && result.support.edge_cut > 0 {
+        let cut = std::mem::replace(&mut result.mappings, uncut);
+        let (uncut_covered, uncut_missed) = coverage(&result, region)?;
+        if uncut_covered >= MIN_COVERAGE {
+            let n = std::mem::take(&mut result.support.edge_cut);
+            result.support.edge_cut_area = 0.0;
+            result.support.edge_cut_waived = n;
+            warnings.push(format!(
+                "{n} sub-frames along frames' edges were used out to the edge although their maps are extrapolated there (noise gain above {}): cut back, only {:.1}% of the region would be seen by at least {COVERAGE_VIEWS} frames; the maps near those frames' edges may lie a few output px off",
+                result.support.edge_noise_gain,
+                100.0 * covered
+            ));
+            (covered, missed) = (uncut_covered, uncut_missed);
+        } else {
+            // Refused either way: the refusal describes the capture with the cuts.
+            result.mappings = cut;
+        }
+    }
     trace.coverage = Some(covered);
     if covered < MIN_COVERAGE {
         let sup = &result.support;
@@ -581,6 +604,9 @@ fn register_and_write(
         };
         if let Some(b) = sup.bent() {
             why += &format!(" ({b}, up to millimetres off)");
+        }
+        if let Some(e) = sup.edges() {
+            why += &format!(" ({e})");
         }
         if result.drops.unconfirmed > 0 {
             why += &format!(

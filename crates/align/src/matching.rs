@@ -40,12 +40,21 @@ pub struct Streams {
     pub second: Option<SecondFrames>,
 }
 
+/// A sub-frame's full rectangle and the one where its map is used in the end (frame
+/// pixels, `[x0, y0, x1, y1]`).
+pub type EdgeCut = ([f64; 4], [f64; 4]);
+
 /// Result of registration, ready to be written.
 pub struct Registration {
     /// Frames kept, with their data: the flash stream's, then the second stream's.
     pub frames: Vec<FrameData>,
     /// Per kept frame: sub-frame rectangles and plane_from_pixel homographies.
     pub mappings: Vec<Vec<([f64; 4], Mat3)>>,
+    /// Per kept frame (stream, video frame or photo number): the sub-frames along its
+    /// edges whose maps are to be used short of that edge (full rectangle, cut one),
+    /// applied by [`support::apply_edge_cuts`](crate::support::apply_edge_cuts) once
+    /// the checks have judged the frames whole.
+    pub edge_cuts: HashMap<(u32, u64), Vec<EdgeCut>>,
     /// Per kept frame: camera pose.
     pub poses: Vec<Pose>,
     /// Per kept frame: light (flash) position, cm. For second-stream frames it is the

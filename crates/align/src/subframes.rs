@@ -5,6 +5,11 @@ use svbrdf_core::geometry::{Mat3, Vec2};
 
 use crate::config::AlignConfig;
 
+/// How far in (shares of the cell's size) the edge of a sub-frame on the frame's edge
+/// may move ([`Grid::cut_rect`]): up to the middle of its cell.
+pub(crate) const EDGE_INSETS: [f64; 11] =
+    [0.0, 0.05, 0.1, 0.15, 0.2, 0.25, 0.3, 0.35, 0.4, 0.45, 0.5];
+
 /// Sub-frame layout of one frame: rectangles with overlap, and the core cells.
 pub(crate) struct Grid {
     pub(crate) cols: usize,
@@ -69,6 +74,76 @@ impl Grid {
     }
 
     /// Sample points on the shared borders of neighbouring cells: (cell a, cell b, point).
+    /// Points along the frame's edges a sub-frame lies on, where its map's uncertainty
+    /// decides how far towards the edge it is used ([`cut_rect`](Self::cut_rect)): for
+    /// each such edge (left, top, right, bottom), for each of [`EDGE_INSETS`], three
+    /// points across the sub-frame.
+    pub(crate) fn edge_probes(&self, k: usize) -> Vec<Vec2> {
+        let r = self.rect(k);
+        let mut out = Vec::new();
+        for (edge, _) in self.outer_edges(k) {
+            for t in EDGE_INSETS {
+                let at = self.inset(k, edge, t);
+                for s in [0.1, 0.5, 0.9] {
+                    out.push(if edge % 2 == 0 {
+                        Vec2::new(at, r[1] + s * (r[3] - r[1]))
+                    } else {
+                        Vec2::new(r[0] + s * (r[2] - r[0]), at)
+                    });
+                }
+            }
+        }
+        out
+    }
+
+    /// The rectangle where sub-frame `k`'s map is used: [`rect`](Self::rect), with each
+    /// edge it shares with the frame moved in to the first of [`EDGE_INSETS`] where the
+    /// noise gain at all three [`edge_probes`](Self::edge_probes) is at most `limit`
+    /// (`gains` in the order of the probes), at most to the middle of its cell.
+    pub(crate) fn cut_rect(&self, k: usize, gains: &[f64], limit: f64) -> [f64; 4] {
+        let mut r = self.rect(k);
+        for (n, (edge, side)) in self.outer_edges(k).into_iter().enumerate() {
+            let per_edge = 3 * EDGE_INSETS.len();
+            let first = (0..EDGE_INSETS.len()).find(|&i| {
+                let at = n * per_edge + 3 * i;
+                gains
+                    .get(at..at + 3)
+                    .is_some_and(|g| g.iter().all(|g| *g <= limit))
+            });
+            let t = EDGE_INSETS[first.unwrap_or(EDGE_INSETS.len() - 1)];
+            r[side] = self.inset(k, edge, t);
+        }
+        r
+    }
+
+    /// The frame edges sub-frame `k` lies on: (0 left, 1 top, 2 right, 3 bottom; the
+    /// index of that side in a rectangle).
+    fn outer_edges(&self, k: usize) -> Vec<(usize, usize)> {
+        let (c, row) = (k % self.cols, k / self.cols);
+        [
+            (c == 0, 0),
+            (row == 0, 1),
+            (c + 1 == self.cols, 2),
+            (row + 1 == self.rows, 3),
+        ]
+        .into_iter()
+        .filter(|(on, _)| *on)
+        .map(|(_, e)| (e, e))
+        .collect()
+    }
+
+    /// Where sub-frame `k`'s `edge` lies when moved in by `t` of its cell's size.
+    fn inset(&self, k: usize, edge: usize, t: f64) -> f64 {
+        let r = self.rect(k);
+        let (cw, ch) = (self.w / self.cols as f64, self.h / self.rows as f64);
+        match edge {
+            0 => r[0] + t * cw,
+            1 => r[1] + t * ch,
+            2 => r[2] - t * cw,
+            _ => r[3] - t * ch,
+        }
+    }
+
     pub(crate) fn seams(&self) -> Vec<(usize, usize, Vec2)> {
         let (cw, ch) = (self.w / self.cols as f64, self.h / self.rows as f64);
         let mut out = Vec::new();
@@ -113,4 +188,65 @@ pub(crate) fn normaliser(w: u32, h: u32) -> Mat3 {
         0.0,
         1.0,
     )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grid() -> Grid {
+        // 540 x 960: the default 3 x 5 grid, cells 180 x 192.
+        Grid::new(540, 960, &AlignConfig::default())
+    }
+
+    #[test]
+    fn edge_probes_lie_on_the_frame_edges_a_sub_frame_shares() {
+        let g = grid();
+        let per_edge = 3 * EDGE_INSETS.len();
+        // Corner (left and top), edge (top), inside (none).
+        assert_eq!(g.edge_probes(0).len(), 2 * per_edge);
+        assert_eq!(g.edge_probes(1).len(), per_edge);
+        assert_eq!(g.edge_probes(4).len(), 0);
+        // The bottom-right corner: right edge first, at the rectangle's edge, then
+        // moving in; then the bottom edge.
+        let k = g.len() - 1;
+        let (r, p) = (g.rect(k), g.edge_probes(k));
+        assert_eq!(p[0].x, r[2]);
+        assert_eq!(p[3].x, r[2] - 0.05 * 180.0);
+        assert_eq!(p[per_edge].y, r[3]);
+        assert!(p
+            .iter()
+            .all(|q| q.x >= r[0] && q.x <= r[2] && q.y >= r[1] && q.y <= r[3]));
+    }
+
+    #[test]
+    fn cut_rect_moves_an_edge_in_to_where_the_gain_falls() {
+        let g = grid();
+        let per_edge = 3 * EDGE_INSETS.len();
+        // Top-left corner: everything well fixed, nothing moves.
+        assert_eq!(g.cut_rect(0, &vec![0.5; 2 * per_edge], 1.5), g.rect(0));
+        // The left edge's gain falls below the limit 0.15 of a cell in; one of the
+        // three points at 0.1 is still above it.
+        let mut gains = vec![0.5; 2 * per_edge];
+        for v in &mut gains[..6] {
+            *v = 3.0;
+        }
+        gains[7] = 1.6;
+        let r = g.cut_rect(0, &gains, 1.5);
+        assert_eq!(r[0], g.rect(0)[0] + 0.15 * 180.0);
+        assert_eq!(&r[1..], &g.rect(0)[1..]);
+        // Nowhere below the limit along the top edge: in to the middle, no further.
+        let mut gains = vec![0.5; 2 * per_edge];
+        for v in &mut gains[per_edge..] {
+            *v = 9.0;
+        }
+        let r = g.cut_rect(0, &gains, 1.5);
+        assert_eq!(r[1], g.rect(0)[1] + 0.5 * 192.0);
+        assert_eq!(r[0], g.rect(0)[0]);
+        // An inside sub-frame has no frame edge to cut.
+        assert_eq!(g.cut_rect(7, &[], 1.5), g.rect(7));
+        // Missing gains (a frame whose normal matrix was singular) cut to the middle.
+        let r = g.cut_rect(1, &[], 1.5);
+        assert_eq!(r[1], g.rect(1)[1] + 0.5 * 192.0);
+    }
 }

@@ -24,6 +24,9 @@ use nalgebra::DMatrix;
 use rayon::prelude::*;
 use svbrdf_core::geometry::{Mat3, Vec2};
 
+use std::collections::HashMap;
+
+use crate::matching::{EdgeCut, Registration};
 use crate::solve::{project, to_params, Constraint};
 
 /// Least share of a frame's sub-frames that must be supported for the frame to be
@@ -49,17 +52,26 @@ pub struct SupportSummary {
     /// out, sub-frames it had).
     #[serde(default)]
     pub bent_trimmed: Vec<(u64, usize, usize)>,
+    /// Largest noise gain at which a sub-frame on a frame's edge is used out to that
+    /// edge (`AlignConfig::edge_noise_gain`; 0: off).
+    #[serde(default)]
+    pub edge_noise_gain: f64,
+    /// Sub-frames of kept frames used short of the frame's edge ([`apply_edge_cuts`]).
+    #[serde(default)]
+    pub edge_cut: usize,
+    /// Share of the kept sub-frames' area (pixels) that those cuts left out.
+    #[serde(default)]
+    pub edge_cut_area: f64,
+    /// Sub-frames that would have been cut but were used out to the frame's edge,
+    /// because the cuts alone took the coverage below the minimum (a warning says so).
+    #[serde(default)]
+    pub edge_cut_waived: usize,
 }
 
 impl SupportSummary {
-    /// One line for people; `None` when nothing was removed.
+    /// One line for people; `None` when nothing was removed or cut.
     pub fn describe(&self) -> Option<String> {
-        let bent = self.bent();
-        if self.removed == 0 {
-            return bent;
-        }
-        let bent = bent.map(|b| format!("; {b}")).unwrap_or_default();
-        Some({
+        let removed = (self.removed > 0).then(|| {
             let dropped = if self.frames_dropped.is_empty() {
                 String::new()
             } else {
@@ -70,11 +82,28 @@ impl SupportSummary {
                 )
             };
             format!(
-                "{} of {} sub-frames left out: no correspondences of their own fixed their maps (noise gain above {}){dropped}; {} kept frames are partial{bent}",
+                "{} of {} sub-frames left out: no correspondences of their own fixed their maps (noise gain above {}){dropped}; {} kept frames are partial",
                 self.removed,
                 self.subframes,
                 self.max_noise_gain,
                 self.partial_frames.len()
+            )
+        });
+        let parts: Vec<String> = [removed, self.edges(), self.bent()]
+            .into_iter()
+            .flatten()
+            .collect();
+        (!parts.is_empty()).then(|| parts.join("; "))
+    }
+
+    /// The cuts along the frames' edges, in words; `None` when there were none.
+    pub fn edges(&self) -> Option<String> {
+        (self.edge_cut > 0).then(|| {
+            format!(
+                "{} sub-frames along frames' edges used short of the edge ({:.1}% of the sub-frames' area), where their maps were extrapolated past their correspondences (noise gain above {})",
+                self.edge_cut,
+                100.0 * self.edge_cut_area,
+                self.edge_noise_gain
             )
         })
     }
@@ -93,6 +122,43 @@ impl SupportSummary {
     }
 }
 
+/// Cut back the sub-frames along the frames' edges to where their maps are fixed
+/// (`Registration::edge_cuts`, worked out by the global solve); called once the checks
+/// have judged the frames whole, so that a frame's admission never depends on the cut.
+/// Records how many sub-frames and how much of their area in `support`.
+pub(crate) fn apply_edge_cuts(reg: &mut Registration) {
+    let keys: Vec<(u32, u64)> = reg.frames.iter().map(|f| (f.stream, f.index)).collect();
+    let (n, share) = cut_mappings(&keys, &mut reg.mappings, &reg.edge_cuts);
+    reg.edge_cuts.clear();
+    reg.support.edge_cut = n;
+    reg.support.edge_cut_area = share;
+}
+
+/// Replace every rectangle of `mappings` (one per frame, keyed by `keys`) that `cuts`
+/// lists for its frame by its cut; the number replaced and the share of the
+/// rectangles' area they lost.
+fn cut_mappings(
+    keys: &[(u32, u64)],
+    mappings: &mut [Vec<([f64; 4], Mat3)>],
+    cuts: &HashMap<(u32, u64), Vec<EdgeCut>>,
+) -> (usize, f64) {
+    let (mut n, mut cut_area, mut area) = (0, 0.0, 0.0);
+    let rect_area = |r: &[f64; 4]| (r[2] - r[0]).max(0.0) * (r[3] - r[1]).max(0.0);
+    for (key, m) in keys.iter().zip(mappings) {
+        let mine = cuts.get(key);
+        for (rect, _) in m.iter_mut() {
+            let a = rect_area(rect);
+            area += a;
+            if let Some(&(_, cut)) = mine.and_then(|c| c.iter().find(|(full, _)| full == rect)) {
+                cut_area += a - rect_area(&cut);
+                *rect = cut;
+                n += 1;
+            }
+        }
+    }
+    (n, if area > 0.0 { cut_area / area } else { 0.0 })
+}
+
 /// Frame numbers, the first eight and a count.
 fn list(v: &[u64]) -> String {
     let head: Vec<String> = v.iter().take(8).map(u64::to_string).collect();
@@ -106,12 +172,31 @@ fn list(v: &[u64]) -> String {
 /// Noise gain of every sub-frame (indexed like the solve's blocks; sub-frames of no
 /// frame in `frames` get `f64::INFINITY`). `frames` lists each frame's block range;
 /// `probes(block)` the normalised points where the block's map is used (its corners).
+#[cfg(test)]
 pub(crate) fn noise_gains(
     solved: &[Mat3],
     cons: &[Constraint],
     frames: &[Range<usize>],
     probes: impl Fn(usize) -> Vec<Vec2> + Sync,
 ) -> Vec<f64> {
+    noise_gains_at(solved, cons, frames, probes)
+        .into_iter()
+        .map(|g| match g {
+            Some(g) => g.into_iter().fold(0.0, f64::max),
+            None => f64::INFINITY,
+        })
+        .collect()
+}
+
+/// The noise gain at each of `probes(block)` (in that order) for every block of a
+/// frame in `frames`; `None` for blocks of no listed frame, every probe infinite where
+/// the frame's normal matrix is singular.
+pub(crate) fn noise_gains_at(
+    solved: &[Mat3],
+    cons: &[Constraint],
+    frames: &[Range<usize>],
+    probes: impl Fn(usize) -> Vec<Vec2> + Sync,
+) -> Vec<Option<Vec<f64>>> {
     let params: Vec<[f64; 8]> = solved.iter().map(to_params).collect();
     let mut frame_of = vec![usize::MAX; solved.len()];
     for (f, r) in frames.iter().enumerate() {
@@ -138,14 +223,14 @@ pub(crate) fn noise_gains(
             }
         }
     }
-    let per_frame: Vec<Vec<(usize, f64)>> = frames
+    let per_frame: Vec<Vec<(usize, Vec<f64>)>> = frames
         .par_iter()
         .zip(&touching)
         .map(|(range, mine)| frame_gains(&params, cons, range.clone(), mine, &probes))
         .collect();
-    let mut out = vec![f64::INFINITY; solved.len()];
+    let mut out = vec![None; solved.len()];
     for (b, g) in per_frame.into_iter().flatten() {
-        out[b] = g;
+        out[b] = Some(g);
     }
     out
 }
@@ -157,7 +242,7 @@ fn frame_gains(
     range: Range<usize>,
     mine: &[usize],
     probes: &(impl Fn(usize) -> Vec<Vec2> + Sync),
-) -> Vec<(usize, f64)> {
+) -> Vec<(usize, Vec<f64>)> {
     let m = range.len();
     let n = 8 * m;
     let mut normal = DMatrix::<f64>::zeros(n, n);
@@ -208,13 +293,15 @@ fn frame_gains(
         normal[(i, i)] += 1e-10 * scale;
     }
     let Some(cov) = normal.cholesky().map(|c| c.inverse()) else {
-        return range.map(|b| (b, f64::INFINITY)).collect();
+        return range
+            .map(|b| (b, vec![f64::INFINITY; probes(b).len()]))
+            .collect();
     };
     range
         .clone()
         .enumerate()
         .map(|(lb, b)| {
-            let worst = probes(b)
+            let gains = probes(b)
                 .into_iter()
                 .map(|p| {
                     let j = project(&params[b], p).1;
@@ -228,8 +315,8 @@ fn frame_gains(
                     }
                     var.max(0.0).sqrt()
                 })
-                .fold(0.0, f64::max);
-            (b, worst)
+                .collect();
+            (b, gains)
         })
         .collect()
 }
@@ -327,6 +414,28 @@ mod tests {
     }
 
     #[test]
+    fn edge_cuts_replace_their_frames_rectangles_only() {
+        let full = [-0.5, -0.5, 100.0, 100.0];
+        let cut = [20.0, -0.5, 100.0, 100.0];
+        let inside = [90.0, 90.0, 200.0, 200.0];
+        let h = Mat3::identity();
+        let mut mappings = vec![vec![(full, h), (inside, h)], vec![(full, h)]];
+        let cuts = HashMap::from([((0, 7), vec![(full, cut)])]);
+        let (n, share) = cut_mappings(&[(0, 7), (1, 7)], &mut mappings, &cuts);
+        assert_eq!(n, 1);
+        assert_eq!(mappings[0][0].0, cut);
+        assert_eq!(mappings[0][1].0, inside);
+        // The same rectangle of another stream's frame 7 is not cut.
+        assert_eq!(mappings[1][0].0, full);
+        let area = 100.5 * 100.5;
+        let lost = 20.5 * 100.5;
+        assert!(
+            (share - lost / (2.0 * area + 110.0 * 110.0)).abs() < 1e-12,
+            "{share}"
+        );
+    }
+
+    #[test]
     fn describe_names_dropped_frames() {
         let s = SupportSummary {
             max_noise_gain: 4.0,
@@ -335,8 +444,14 @@ mod tests {
             frames_dropped: (1..=10).collect(),
             partial_frames: vec![(20, 10, 15)],
             bent_trimmed: vec![(24, 4, 15), (30, 2, 15)],
+            edge_noise_gain: 1.5,
+            edge_cut: 12,
+            edge_cut_area: 0.034,
+            edge_cut_waived: 0,
         };
         let line = s.describe().unwrap_or_default();
+        assert!(line.contains("; 12 sub-frames along frames' edges used short of the edge (3.4% of the sub-frames' area)"), "{line}");
+        assert!(line.contains("(noise gain above 1.5)"), "{line}");
         assert!(line.contains("30 of 100"), "{line}");
         assert!(line.ends_with("6 sub-frames of frame(s) 24, 30 left out: the self-check showed them bent at an edge"), "{line}");
         assert!(line.contains("1, 2, 3, 4, 5, 6, 7, 8 and 2 more"), "{line}");
@@ -346,5 +461,10 @@ mod tests {
             ..Default::default()
         };
         assert_eq!(only_bent.describe(), only_bent.bent());
+        let only_cut = SupportSummary {
+            edge_cut: 3,
+            ..Default::default()
+        };
+        assert_eq!(only_cut.describe(), only_cut.edges());
     }
 }

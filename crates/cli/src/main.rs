@@ -166,6 +166,11 @@ struct AlignArgs {
     /// are extrapolations (docs/RELIABILITY.md).
     #[arg(long)]
     max_noise_gain: Option<f64>,
+    /// Largest noise gain at which a sub-frame on a frame's edge is used out to that
+    /// edge (default 1.5; 0: always): beyond it the map is cut back towards where its
+    /// correspondences fix it.
+    #[arg(long)]
+    edge_noise_gain: Option<f64>,
     /// Test all frame pairs in coarse alignment (slow; for benchmarks).
     #[arg(long)]
     all_pairs: bool,
@@ -271,6 +276,9 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
     }
     if let Some(v) = a.max_noise_gain {
         c.max_noise_gain = v;
+    }
+    if let Some(v) = a.edge_noise_gain {
+        c.edge_noise_gain = v;
     }
     if let Some(v) = a.marker_views {
         c.marker_views = v;

@@ -319,6 +319,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         fine_long_side: None,
         overlap_weight: None,
         max_noise_gain: None,
+        edge_noise_gain: None,
         fine_features: None,
         fine_min_inliers: None,
         fine_inlier_px: None,
