@@ -185,7 +185,11 @@ impl Matched {
             [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]
                 .into_iter()
                 .map(|(x, y)| Vec2::new(x, y))
-                .chain(grids[i].edge_probes(b - slot[&i]))
+                .chain(if cfg.edge_noise_gain > 0.0 {
+                    grids[i].edge_probes(b - slot[&i])
+                } else {
+                    Vec::new()
+                })
                 .map(|p| norm(i, p))
                 .collect()
         });

@@ -73,7 +73,6 @@ impl Grid {
         ]
     }
 
-    /// Sample points on the shared borders of neighbouring cells: (cell a, cell b, point).
     /// Points along the frame's edges a sub-frame lies on, where its map's uncertainty
     /// decides how far towards the edge it is used ([`cut_rect`](Self::cut_rect)): for
     /// each such edge (left, top, right, bottom), for each of [`EDGE_INSETS`], three
@@ -81,7 +80,7 @@ impl Grid {
     pub(crate) fn edge_probes(&self, k: usize) -> Vec<Vec2> {
         let r = self.rect(k);
         let mut out = Vec::new();
-        for (edge, _) in self.outer_edges(k) {
+        for edge in self.outer_edges(k) {
             for t in EDGE_INSETS {
                 let at = self.inset(k, edge, t);
                 for s in [0.1, 0.5, 0.9] {
@@ -102,8 +101,8 @@ impl Grid {
     /// (`gains` in the order of the probes), at most to the middle of its cell.
     pub(crate) fn cut_rect(&self, k: usize, gains: &[f64], limit: f64) -> [f64; 4] {
         let mut r = self.rect(k);
-        for (n, (edge, side)) in self.outer_edges(k).into_iter().enumerate() {
-            let per_edge = 3 * EDGE_INSETS.len();
+        let per_edge = 3 * EDGE_INSETS.len();
+        for (n, edge) in self.outer_edges(k).into_iter().enumerate() {
             let first = (0..EDGE_INSETS.len()).find(|&i| {
                 let at = n * per_edge + 3 * i;
                 gains
@@ -111,25 +110,20 @@ impl Grid {
                     .is_some_and(|g| g.iter().all(|g| *g <= limit))
             });
             let t = EDGE_INSETS[first.unwrap_or(EDGE_INSETS.len() - 1)];
-            r[side] = self.inset(k, edge, t);
+            r[edge] = self.inset(k, edge, t);
         }
         r
     }
 
-    /// The frame edges sub-frame `k` lies on: (0 left, 1 top, 2 right, 3 bottom; the
+    /// The frame edges sub-frame `k` lies on: 0 left, 1 top, 2 right, 3 bottom (the
     /// index of that side in a rectangle).
-    fn outer_edges(&self, k: usize) -> Vec<(usize, usize)> {
+    fn outer_edges(&self, k: usize) -> Vec<usize> {
         let (c, row) = (k % self.cols, k / self.cols);
-        [
-            (c == 0, 0),
-            (row == 0, 1),
-            (c + 1 == self.cols, 2),
-            (row + 1 == self.rows, 3),
-        ]
-        .into_iter()
-        .filter(|(on, _)| *on)
-        .map(|(_, e)| (e, e))
-        .collect()
+        [c == 0, row == 0, c + 1 == self.cols, row + 1 == self.rows]
+            .into_iter()
+            .enumerate()
+            .filter_map(|(edge, on)| on.then_some(edge))
+            .collect()
     }
 
     /// Where sub-frame `k`'s `edge` lies when moved in by `t` of its cell's size.
@@ -144,6 +138,7 @@ impl Grid {
         }
     }
 
+    /// Sample points on the shared borders of neighbouring cells: (cell a, cell b, point).
     pub(crate) fn seams(&self) -> Vec<(usize, usize, Vec2)> {
         let (cw, ch) = (self.w / self.cols as f64, self.h / self.rows as f64);
         let mut out = Vec::new();

@@ -169,25 +169,6 @@ fn list(v: &[u64]) -> String {
     }
 }
 
-/// Noise gain of every sub-frame (indexed like the solve's blocks; sub-frames of no
-/// frame in `frames` get `f64::INFINITY`). `frames` lists each frame's block range;
-/// `probes(block)` the normalised points where the block's map is used (its corners).
-#[cfg(test)]
-pub(crate) fn noise_gains(
-    solved: &[Mat3],
-    cons: &[Constraint],
-    frames: &[Range<usize>],
-    probes: impl Fn(usize) -> Vec<Vec2> + Sync,
-) -> Vec<f64> {
-    noise_gains_at(solved, cons, frames, probes)
-        .into_iter()
-        .map(|g| match g {
-            Some(g) => g.into_iter().fold(0.0, f64::max),
-            None => f64::INFINITY,
-        })
-        .collect()
-}
-
 /// The noise gain at each of `probes(block)` (in that order) for every block of a
 /// frame in `frames`; `None` for blocks of no listed frame, every probe infinite where
 /// the frame's normal matrix is singular.
@@ -324,6 +305,24 @@ fn frame_gains(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Noise gain of every sub-frame (indexed like the solve's blocks; sub-frames of no
+    /// frame in `frames` get `f64::INFINITY`). `frames` lists each frame's block range;
+    /// `probes(block)` the normalised points where the block's map is used (its corners).
+    fn noise_gains(
+        solved: &[Mat3],
+        cons: &[Constraint],
+        frames: &[Range<usize>],
+        probes: impl Fn(usize) -> Vec<Vec2> + Sync,
+    ) -> Vec<f64> {
+        noise_gains_at(solved, cons, frames, probes)
+            .into_iter()
+            .map(|g| match g {
+                Some(g) => g.into_iter().fold(0.0, f64::max),
+                None => f64::INFINITY,
+            })
+            .collect()
+    }
 
     /// One frame of 2 x 1 sub-frames over normalised x in [-1, 1] (split at 0), both
     /// starting as the same map (plane cm = 5 x normalised), joined by seams at x = 0.
