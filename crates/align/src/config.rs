@@ -101,6 +101,13 @@ pub struct AlignConfig {
     /// [`MIN_GAIN`](crate::relief::MIN_GAIN) of that model's residual (`relief`).
     #[serde(default = "default_true")]
     pub relief: bool,
+    /// Where the frames sampled at the camera's `frame_step` leave the region thin
+    /// (seen by at least 3 kept frames over less than
+    /// [`GOOD_COVERAGE`](crate::GOOD_COVERAGE) of it) or cannot be registered at all,
+    /// align the video again from every `frame_step / 2`-th frame and keep that pass
+    /// where it covers more (`densify`; videos of one camera only).
+    #[serde(default = "default_true")]
+    pub densify: bool,
     /// The check of every kept frame against the reference photo after the solve.
     #[serde(default)]
     pub self_check: crate::selfcheck::SelfCheckConfig,
@@ -193,6 +200,7 @@ impl Default for AlignConfig {
             plane_ties: true,
             marker_corners: true,
             relief: true,
+            densify: true,
             self_check: crate::selfcheck::SelfCheckConfig::default(),
             reference_weight: 1.0,
             overlap_weight: 4.0,

@@ -411,6 +411,7 @@ impl Matched {
             support,
             edge_cuts,
             marker_hunt: None,
+            densified: None,
             plane_ties: None,
             marker_corners: None,
             relief: None,

@@ -20,6 +20,7 @@ mod checks;
 mod coarse;
 pub mod config;
 pub mod corners;
+pub mod densify;
 pub mod exposure;
 mod fine;
 mod frames;
@@ -52,6 +53,7 @@ use checks::{apply_self_check, check_baseline, coverage, self_check};
 pub use checks::{COVERAGE_VIEWS, GOOD_COVERAGE, MIN_COVERAGE, MIN_SWEEP_CM};
 pub use coarse::Connectivity;
 pub use config::{AlignConfig, CameraDescription, FineMethod};
+use densify::{finer_step, prefer_finer};
 pub use frames::FrameData;
 pub use summary::{SecondStreamSummary, VideoDecoding};
 
@@ -238,6 +240,11 @@ pub struct AlignSummary {
     /// where it ran.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub marker_hunt: Option<hunt::MarkerHunt>,
+    /// The pass at the camera's frame step and a second from twice as many frames,
+    /// where the first left the region thin (`densify`); `frames` and every other
+    /// field describe the pass written (`kept_finer`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub densified: Option<densify::Densified>,
     /// Plane ties (frames without reference-photo matches tied by the self-check's
     /// blocks, solved again), where they ran.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -350,9 +357,98 @@ pub fn align(
     let (ref_img, reference) = reference_photo(&inputs.reference, cfg, dict)?;
     timer.lap("reference");
 
-    // Frames: decode, blur metric, markers, features; then the marker hunt.
+    let attempt = |c: &AlignConfig, timer: &mut Timer| {
+        let mut trace = trace::AlignTrace::default();
+        let decoded = decode_input(inputs, c, dict, &reference, progress, timer, &mut trace)?;
+        let registered = register(
+            inputs, c, progress, decoded, &ref_img, &reference, timer, &mut trace,
+        );
+        Ok::<_, AlignError>((registered, trace))
+    };
+    let (mut registered, mut trace) = attempt(cfg, &mut timer)?;
+    let mut used = cfg.clone();
+    // Where the sampled frames leave the region thin, a second pass from twice as many
+    // (`densify`).
+    let finer = finer_step(cfg.camera.frame_step)
+        .filter(|_| cfg.densify && inputs.video.is_some() && inputs.second_video.is_none());
+    if let Some(step) = finer {
+        let first = outcome(cfg.camera.frame_step, &registered, &trace);
+        if first.thin() {
+            let mut c = cfg.clone();
+            c.camera.frame_step = step;
+            // A finer pass that cannot even decode leaves the first one as it was.
+            let (again, again_trace) =
+                attempt(&c, &mut timer).unwrap_or_else(|e| (Err(e), trace::AlignTrace::default()));
+            let finer = outcome(step, &again, &again_trace);
+            let kept_finer = prefer_finer(&first, &finer);
+            // A refusal after both passes reports the finer pass, which tried more.
+            let both_refused = registered.is_err() && again.is_err();
+            if kept_finer || (both_refused && again_trace.per_frame.len() > trace.per_frame.len()) {
+                (registered, trace, used) = (again, again_trace, c);
+            }
+            let d = densify::Densified {
+                first,
+                finer,
+                kept_finer,
+            };
+            match &mut registered {
+                Ok(r) => r.result.densified = Some(d),
+                Err(_) => trace.densified = Some(d),
+            }
+        }
+    }
+    match registered {
+        Ok(r) => output::write(
+            inputs,
+            &used,
+            &reference,
+            r.result,
+            r.second,
+            out,
+            overwrite,
+            std::mem::take(&mut timer.0),
+            r.warnings,
+            r.checks,
+            r.covered,
+            r.decoding,
+            progress,
+        ),
+        Err(e) => Err(output::refuse(inputs, &used, &reference, &trace, e, out)),
+    }
+}
+
+/// What a pass gave, from its result and trace.
+fn outcome(
+    frame_step: u32,
+    registered: &Result<Registered, AlignError>,
+    trace: &trace::AlignTrace,
+) -> densify::PassOutcome {
+    let flash = trace.per_frame.iter().filter(|t| t.stream == 0);
+    densify::PassOutcome {
+        frame_step,
+        sampled: flash.clone().count(),
+        kept: flash.filter(|t| t.fate == trace::Fate::Kept).count(),
+        coverage: match registered {
+            Ok(r) => Some(r.covered),
+            Err(_) => trace.coverage,
+        },
+        refusal: registered.as_ref().err().map(|e| e.to_string()),
+    }
+}
+
+/// Decode the flash frames (and run the marker hunt) or read the photos.
+#[allow(clippy::too_many_arguments)]
+fn decode_input(
+    inputs: &AlignInputs,
+    cfg: &AlignConfig,
+    dict: svbrdf_cv::aruco::Dictionary,
+    reference: &reference::ReferenceFrame,
+    progress: &dyn Progress,
+    timer: &mut Timer,
+    trace: &mut trace::AlignTrace,
+) -> Result<Decoded, AlignError> {
     let mut hunted = None;
-    let (decoded, ordered, decoding) = match (&inputs.video, &inputs.photos) {
+    let (frames, ordered, decoding) = match (&inputs.video, &inputs.photos) {
         (Some(v), None) => {
             let (frames, decoding) = frames::decode_frames(v, cfg, dict, progress)?;
             timer.lap("decode + features");
@@ -377,8 +473,7 @@ pub fn align(
             ))
         }
     };
-    let mut trace = trace::AlignTrace::default();
-    trace.add_frames(&decoded);
+    trace.add_frames(&frames);
     if let Some(h) = &hunted {
         for &f in &h.added {
             if let Some(t) = trace.frame_mut(0, f) {
@@ -387,53 +482,47 @@ pub fn align(
         }
     }
     trace.marker_hunt = hunted;
-    let registered = register_and_write(
-        inputs,
-        cfg,
-        out,
-        overwrite,
-        progress,
-        Decoded {
-            frames: decoded,
-            ordered,
-            decoding,
-            ref_img: &ref_img,
-            reference: &reference,
-        },
-        &mut timer,
-        &mut trace,
-    );
-    registered.map_err(|e| output::refuse(inputs, cfg, &reference, &trace, e, out))
+    Ok(Decoded {
+        frames,
+        ordered,
+        decoding,
+    })
 }
 
 /// The decoded input of [`register_and_write`].
-struct Decoded<'a> {
+struct Decoded {
     frames: Vec<FrameData>,
     ordered: bool,
     decoding: Option<VideoDecoding>,
-    ref_img: &'a svbrdf_core::image::ImageU8,
-    reference: &'a reference::ReferenceFrame,
 }
 
-/// Everything after the frames are decoded: registration, its checks and the output.
-/// `trace` says what was tried when this fails.
+/// A registration that passed its checks, ready for [`output::write`].
+struct Registered {
+    result: matching::Registration,
+    second: Option<SecondStreamSummary>,
+    warnings: Vec<String>,
+    checks: Vec<selfcheck::FrameCheck>,
+    covered: f64,
+    decoding: Option<VideoDecoding>,
+}
+
+/// Everything after the frames are decoded: registration and its checks. `trace` says
+/// what was tried when this fails.
 #[allow(clippy::too_many_arguments)]
-fn register_and_write(
+fn register(
     inputs: &AlignInputs,
     cfg: &AlignConfig,
-    out: &Path,
-    overwrite: bool,
     progress: &dyn Progress,
-    decoded: Decoded<'_>,
+    decoded: Decoded,
+    ref_img: &svbrdf_core::image::ImageU8,
+    reference: &reference::ReferenceFrame,
     timer: &mut Timer,
     trace: &mut trace::AlignTrace,
-) -> Result<AlignSummary, AlignError> {
+) -> Result<Registered, AlignError> {
     let Decoded {
         frames: decoded,
         ordered,
         decoding,
-        ref_img,
-        reference,
     } = decoded;
     let dict = svbrdf_cv::aruco::Dictionary::from_name(&cfg.camera.marker_dictionary)?;
     let ref_features = if cfg.match_reference {
@@ -648,21 +737,14 @@ fn register_and_write(
             d.disconnected
         ));
     }
-    output::write(
-        inputs,
-        cfg,
-        reference,
+    Ok(Registered {
         result,
-        second_summary,
-        out,
-        overwrite,
-        std::mem::take(&mut timer.0),
+        second: second_summary,
         warnings,
         checks,
         covered,
         decoding,
-        progress,
-    )
+    })
 }
 
 /// Synchronise the second video with the flash video and decode its frames at its

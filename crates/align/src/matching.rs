@@ -96,6 +96,9 @@ pub struct Registration {
     pub support: crate::support::SupportSummary,
     /// The marker hunt, where it ran (set by the caller).
     pub marker_hunt: Option<crate::hunt::MarkerHunt>,
+    /// The first pass and a second from more frames, where both ran (set by the
+    /// caller).
+    pub densified: Option<crate::densify::Densified>,
     /// Frames confirmed by plane ties (full-resolution matches with the reference
     /// photo after a first solve), as (stream, frame number); set by the caller.
     pub plane_tied: BTreeSet<(u32, u64)>,

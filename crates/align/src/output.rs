@@ -628,6 +628,7 @@ pub fn write(
         exposure: Some(exposure),
         support: reg.support.clone(),
         marker_hunt: reg.marker_hunt.clone(),
+        densified: reg.densified.clone(),
         plane_ties: reg.plane_ties.clone(),
         marker_corners: reg.marker_corners.clone(),
         relief: reg.relief.clone(),

@@ -97,6 +97,9 @@ pub struct AlignTrace {
     /// The marker hunt, where it ran.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub marker_hunt: Option<crate::hunt::MarkerHunt>,
+    /// The first pass and a second from more frames, where both ran (`densify`).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub densified: Option<crate::densify::Densified>,
 }
 
 impl AlignTrace {
@@ -175,6 +178,9 @@ impl AlignTrace {
                 "; the connectivity map fell into {} pieces",
                 self.pieces.len()
             ));
+        }
+        if let Some(d) = &self.densified {
+            line.push_str(&format!("; before: {}", d.first.describe()));
         }
         line
     }

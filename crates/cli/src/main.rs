@@ -212,6 +212,10 @@ struct AlignArgs {
     /// relief appears moved towards the flash; a diagnostic)
     #[arg(long)]
     no_relief: bool,
+    /// Do not align the video again from every `frame_step / 2`-th frame where the
+    /// frames sampled at the camera's `frame_step` leave the region thin or are refused
+    #[arg(long)]
+    no_densify: bool,
     #[command(flatten)]
     second: SecondArgs,
     /// Replace the output folder if it exists.
@@ -294,6 +298,9 @@ fn align_config(a: &AlignArgs) -> Result<svbrdf_align::AlignConfig> {
     }
     if a.no_plane_ties {
         c.plane_ties = false;
+    }
+    if a.no_densify {
+        c.densify = false;
     }
 
     if let Some(v) = a.fine_features {
@@ -420,6 +427,9 @@ fn run_align(a: &AlignArgs) -> Result<()> {
     let s = svbrdf_align::align(&inputs, &cfg, &a.out, a.overwrite, &progress)?;
     let f = &s.frames;
     say!("wrote {}", s.out.display());
+    if let Some(d) = &s.densified {
+        say!("{}", d.describe());
+    }
     say!("frames: {}", f.describe());
     say!(
         "matching: {} coarse pairs tested, {} connected, {} fine pairs{}{}; {} frames see markers, {} anchored to the reference photo{}",

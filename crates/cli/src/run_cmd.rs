@@ -334,6 +334,7 @@ pub fn run_pipeline(a: &RunArgs) -> Result<RunOutcome> {
         marker_views: None,
         no_reference_matches: false,
         no_plane_ties: false,
+        no_densify: false,
         no_marker_corners: false,
         no_relief: false,
         second: a.second.clone(),

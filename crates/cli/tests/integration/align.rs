@@ -5,7 +5,7 @@ use std::path::Path;
 
 use svbrdf_core::capture::{FrameMapping, RegisteredCapture};
 
-use crate::util::{stderr, svbrdf, temp_dir, tiny_capture};
+use crate::util::{read_json, stderr, svbrdf, temp_dir, tiny_capture};
 
 fn align(cap: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
     crate::util::align_synth(cap, out, extra)
@@ -500,6 +500,71 @@ fn streaky_brushed_metal_is_refused_or_right_never_silently_off() {
     }
 }
 
+/// Issue 18 item 2: where the frames sampled at the camera's frame step leave the
+/// region thin, the video is aligned again from twice as many frames and the pass that
+/// covers more is written; `align.json` records both. The tiny capture sampled every
+/// 30th frame: 92% of the region seen by 3 kept frames (measured); every 15th: 99%.
+#[test]
+fn a_thin_frame_step_is_aligned_again_from_more_frames() {
+    let cap = tiny_capture();
+    let sparse = temp_dir().join("every-30th");
+    std::fs::create_dir_all(&sparse).unwrap();
+    for f in ["flash.mp4", "reference.jpg"] {
+        std::fs::copy(cap.join(f), sparse.join(f)).unwrap();
+    }
+    let mut camera = read_json(&cap.join("camera.json"));
+    camera["frame_step"] = 30.into();
+    std::fs::write(sparse.join("camera.json"), camera.to_string()).unwrap();
+
+    // The first pass alone: registered, thin, and says so.
+    let out = temp_dir().join("first-pass");
+    let o = align(&sparse, &out, &["--no-densify"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        stderr(&o).contains("of the region is seen by at least 3"),
+        "{}",
+        stderr(&o)
+    );
+    let first = read_json(&out.join("align.json"));
+    assert!(first["summary"]["densified"].is_null());
+    let first_coverage = first["summary"]["coverage"].as_f64().unwrap();
+    assert!(
+        first_coverage < svbrdf_align::GOOD_COVERAGE,
+        "{first_coverage}"
+    );
+
+    // By default a second pass from every 15th frame, written because it covers more.
+    let out = temp_dir().join("densified");
+    let o = align(&sparse, &out, &[]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        text.contains("aligned again from every 15th frame"),
+        "{text}"
+    );
+    let rec = read_json(&out.join("align.json"));
+    let s = &rec["summary"];
+    let d = &s["densified"];
+    assert_eq!(d["first"]["frame_step"], 30, "{d}");
+    assert_eq!(d["first"]["coverage"].as_f64().unwrap(), first_coverage);
+    assert_eq!(
+        d["first"]["kept"], first["summary"]["frames"]["kept"],
+        "{d}"
+    );
+    assert_eq!(d["finer"]["frame_step"], 15, "{d}");
+    assert_eq!(d["kept_finer"], true, "{d}");
+    // Everything else in the record is the finer pass's.
+    assert_eq!(rec["settings"]["camera"]["frame_step"], 15);
+    assert_eq!(d["finer"]["sampled"], s["frames"]["decoded"], "{d}");
+    assert_eq!(d["finer"]["kept"], s["frames"]["kept"], "{d}");
+    let coverage = s["coverage"].as_f64().unwrap();
+    assert_eq!(d["finer"]["coverage"].as_f64().unwrap(), coverage);
+    assert!(coverage > first_coverage, "{coverage}");
+    let v = alignment_accuracy(&out, cap);
+    assert!(v["align_error_px_median"].as_f64().unwrap() < 0.25, "{v}");
+    assert!(v["worst_frame_px_p95"].as_f64().unwrap() < 1.0, "{v}");
+}
+
 /// Issue 18 item 5: a refused alignment leaves `align.json` (status "refused") and
 /// nothing else: the error, the reference camera, and every sampled frame with its
 /// blur, whole markers, reference-photo matches against the threshold, its piece of
@@ -566,6 +631,19 @@ fn refusal_is_recorded_frame_by_frame(cap: &Path, out: &Path, err: &str) {
         "{line}"
     );
     assert!(line.contains(&format!("{needed} needed")), "{line}");
+    // Refused at the camera's frame step, the video was aligned again from twice as
+    // many frames (`densify`); the record and the line describe that second pass, and
+    // say what the first gave.
+    let d = &t["densified"];
+    if !d.is_null() {
+        assert_eq!(
+            d["finer"]["sampled"].as_u64().unwrap() as usize,
+            frames.len()
+        );
+        assert!(d["first"]["refusal"].is_string(), "{d}");
+        assert_eq!(d["kept_finer"], false, "{d}");
+        assert!(line.contains("; before: every 5th frame: "), "{line}");
+    }
     assert!(
         line.contains(&out.join("align.json").display().to_string()),
         "{line}"
