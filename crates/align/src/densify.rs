@@ -7,9 +7,10 @@
 //! neighbours tie down well enough: they are left out (unconfirmed, disconnected,
 //! unregistered), and the region they saw is seen by too few kept frames, or the run
 //! is refused. Frames sampled twice as densely overlap their neighbours more and
-//! shorten each stretch between anchors: on the Mitsuba-rendered tiles (session 41,
-//! docs/BENCHMARKS.md) every 5th frame left 60-99% of the region seen by 3 kept frames
-//! where every 2nd gave 97-100%. So where the first pass is refused, or leaves less
+//! shorten each stretch between anchors: on the three Mitsuba-rendered tiles captures
+//! (session 41, docs/BENCHMARKS.md) every 5th frame was refused (55% of the region seen
+//! by 3 kept frames) or left 63.8% and 91.0%, where every 2nd gave 97.2%, 100% and
+//! 100%. So where the first pass is refused, or leaves less
 //! than [`GOOD_COVERAGE`] of the region seen by [`COVERAGE_VIEWS`](crate::COVERAGE_VIEWS)
 //! kept frames, the video is aligned again from every `frame_step / 2`-th frame, and
 //! the pass that registers more of the region is written. `align.json`

@@ -119,6 +119,9 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
                 ),
             ));
         }
+        if let Some(line) = densified_row(a) {
+            rows.push(("frame step".into(), line));
+        }
         rows.push((
             "alignment".into(),
             format!(
@@ -644,6 +647,34 @@ window.addEventListener("load", () => {{
     Ok(path)
 }
 
+/// The report's line for a capture aligned twice (`align.json` `summary.densified`):
+/// what the pass at the camera's frame step gave, what the finer pass gave, and which
+/// one the capture uses.
+fn densified_row(a: &serde_json::Value) -> Option<String> {
+    let d = &a["summary"]["densified"];
+    let first = d["first"]["frame_step"].as_u64()?;
+    let finer = d["finer"]["frame_step"].as_u64()?;
+    let pass = |p: &serde_json::Value| {
+        let what = match p["coverage"].as_f64() {
+            Some(c) if p["refusal"].is_null() => {
+                format!("{:.1}% of the region covered", 100.0 * c)
+            }
+            _ => "refused".to_string(),
+        };
+        format!("{} of {} kept, {what}", p["kept"], p["sampled"])
+    };
+    Some(format!(
+        "one frame in {first} sampled: {}; aligned again from one frame in {finer}: {}; this capture uses the {} pass",
+        pass(&d["first"]),
+        pass(&d["finer"]),
+        if d["kept_finer"].as_bool() == Some(true) {
+            "finer"
+        } else {
+            "first"
+        }
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::page::base64;
@@ -662,6 +693,21 @@ mod tests {
         ] {
             assert_eq!(base64(i.as_bytes()), o);
         }
+    }
+
+    #[test]
+    fn a_capture_aligned_twice_says_which_pass_it_uses() {
+        let a = serde_json::json!({"summary": {"densified": {
+            "first": {"frame_step": 5, "sampled": 26, "kept": 16, "coverage": 0.55,
+                      "refusal": "only 55.0% of the region is seen"},
+            "finer": {"frame_step": 2, "sampled": 61, "kept": 46, "coverage": 0.972,
+                      "refusal": null},
+            "kept_finer": true}}});
+        assert_eq!(
+            densified_row(&a).expect("row"),
+            "one frame in 5 sampled: 16 of 26 kept, refused; aligned again from one frame in 2: 46 of 61 kept, 97.2% of the region covered; this capture uses the finer pass"
+        );
+        assert!(densified_row(&serde_json::json!({"summary": {}})).is_none());
     }
 
     #[test]
