@@ -490,7 +490,7 @@ fn decode_input(
     })
 }
 
-/// The decoded input of [`register_and_write`].
+/// The decoded input of [`register`].
 struct Decoded {
     frames: Vec<FrameData>,
     ordered: bool,
