@@ -377,6 +377,10 @@ pub fn align(
         if first.thin() {
             let mut c = cfg.clone();
             c.camera.frame_step = step;
+            // The stage timings name the first pass's stages as such.
+            for (name, _) in timer.0.iter_mut().skip(1) {
+                *name = format!("first pass: {name}");
+            }
             // A finer pass that cannot even decode leaves the first one as it was.
             let (again, again_trace) =
                 attempt(&c, &mut timer).unwrap_or_else(|e| (Err(e), trace::AlignTrace::default()));

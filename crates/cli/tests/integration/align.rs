@@ -542,6 +542,7 @@ fn a_thin_frame_step_is_aligned_again_from_more_frames() {
         text.contains("aligned again from every 15th frame"),
         "{text}"
     );
+    assert!(text.contains("first pass: decode + features"), "{text}");
     let rec = read_json(&out.join("align.json"));
     let s = &rec["summary"];
     let d = &s["densified"];
