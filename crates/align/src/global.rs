@@ -177,8 +177,9 @@ impl Matched {
             .iter()
             .flat_map(|&i| std::iter::repeat_n(i, grids[i].len()))
             .collect();
-        // Noise gains at each sub-frame's corners (its support), then along the frame's
-        // edges it lies on (how far towards them its map is used).
+        // Noise gains at each sub-frame's `CORNERS` corners (its support), then along the
+        // frame's edges it lies on (how far towards them its map is used).
+        const CORNERS: usize = 4;
         let probed = crate::support::noise_gains_at(&solved, &cons, &ranges, |b| {
             let i = owner[b];
             let [x0, y0, x1, y1] = grids[i].rect(b - slot[&i]);
@@ -197,7 +198,7 @@ impl Matched {
             .iter()
             .map(|g| {
                 g.as_ref().map_or(f64::INFINITY, |g| {
-                    g.iter().take(4).fold(0.0, |a, b| a.max(*b))
+                    g.iter().take(CORNERS).fold(0.0, |a, b| a.max(*b))
                 })
             })
             .collect();
@@ -228,7 +229,7 @@ impl Matched {
             let cuts: Vec<[f64; 4]> = (0..grid.len())
                 .map(|c| match &probed[slot[&i] + c] {
                     Some(g) if cfg.edge_noise_gain > 0.0 => {
-                        grid.cut_rect(c, g.get(4..).unwrap_or(&[]), cfg.edge_noise_gain)
+                        grid.cut_rect(c, g.get(CORNERS..).unwrap_or(&[]), cfg.edge_noise_gain)
                     }
                     _ => grid.rect(c),
                 })

@@ -366,6 +366,7 @@ pub fn align(
         );
         Ok::<_, AlignError>((registered, trace))
     };
+    let first_lap = timer.0.len();
     let (mut registered, mut trace) = attempt(cfg, &mut timer)?;
     let mut used = cfg.clone();
     // Where the sampled frames leave the region thin, a second pass from twice as many
@@ -378,7 +379,7 @@ pub fn align(
             let mut c = cfg.clone();
             c.camera.frame_step = step;
             // The stage timings name the first pass's stages as such.
-            for (name, _) in timer.0.iter_mut().skip(1) {
+            for (name, _) in timer.0.iter_mut().skip(first_lap) {
                 *name = format!("first pass: {name}");
             }
             // A finer pass that cannot even decode leaves the first one as it was.
