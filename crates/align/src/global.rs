@@ -34,6 +34,33 @@ impl Matched {
         Ok(again)
     }
 
+    /// [`solve_again`](Self::solve_again) without the frames `leave_out` names
+    /// (stream, frame number): their correspondences no longer hold the others' maps,
+    /// and the others' support is judged without them.
+    #[allow(clippy::too_many_arguments)]
+    pub(crate) fn solve_without(
+        &self,
+        leave_out: &std::collections::HashSet<(u32, u64)>,
+        ties: &PlaneTies,
+        previous: &mut Registration,
+        cfg: &AlignConfig,
+        progress: &dyn Progress,
+        lap: &mut dyn FnMut(&str),
+        trace: &mut AlignTrace,
+    ) -> Result<Registration, AlignError> {
+        let registered: Vec<usize> = self
+            .registered
+            .iter()
+            .copied()
+            .filter(|&i| !leave_out.contains(&(self.frames[i].stream, self.frames[i].index)))
+            .collect();
+        let mut again = self.solve_frames(&registered, ties, cfg, progress, lap, trace)?;
+        again.marker_hunt = previous.marker_hunt.take();
+        again.marker_corners = previous.marker_corners.take();
+        again.relief = previous.relief.take();
+        Ok(again)
+    }
+
     /// Solve for every registered frame's sub-frame maps, with `ties` as extra
     /// anchors, and keep the frames whose maps are supported and whose pose is
     /// plausible.
@@ -45,12 +72,24 @@ impl Matched {
         lap: &mut dyn FnMut(&str),
         trace: &mut AlignTrace,
     ) -> Result<Registration, AlignError> {
+        self.solve_frames(&self.registered, ties, cfg, progress, lap, trace)
+    }
+
+    /// [`solve`](Self::solve) over the frames `registered` (indices into `frames`).
+    fn solve_frames(
+        &self,
+        registered: &[usize],
+        ties: &PlaneTies,
+        cfg: &AlignConfig,
+        progress: &dyn Progress,
+        lap: &mut dyn FnMut(&str),
+        trace: &mut AlignTrace,
+    ) -> Result<Registration, AlignError> {
         let Matched {
             frames,
             fine,
             anchors,
             marker_anchors,
-            registered,
             init,
             intrinsics,
             intrinsics2,

@@ -12,5 +12,6 @@ mod hostile;
 mod photos;
 mod run;
 mod synth;
+mod ties;
 mod two_camera;
 mod util;
