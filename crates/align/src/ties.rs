@@ -42,6 +42,14 @@ pub const TIE_TRIGGER_MM: f64 = 0.1;
 /// A frame placed by plane ties is confirmed where the patch matcher finds the
 /// reference photo's texture at this share of its features at least.
 pub const GUIDED_MIN_SHARE: f64 = 0.5;
+/// A sub-frame of a frame the full-resolution matches confirm is left out where at
+/// least this many of its features were tried ...
+pub const GUIDED_SUB_MIN_TRIED: usize = 20;
+/// ... and under this share of them matched: the frame is right where it matched and
+/// bent there (hard-small patchwork seed 2, markers alone: the top sub-frames of frames
+/// 2-12, 0-4 of 120-170 features matched each, lay 1.4-5 px off; the matched ones
+/// 0.1-0.9 px).
+pub const GUIDED_SUB_MIN_SHARE: f64 = 0.25;
 /// Full-resolution matches kept per frame at most.
 pub const MAX_GUIDED: usize = 300;
 /// Weight of one block tie (a 4 cm block matched with the reference photo) against
@@ -75,6 +83,11 @@ pub struct PlaneTieSummary {
     /// (video frame numbers).
     #[serde(default)]
     pub unconfirmed: Vec<u64>,
+    /// Confirmed frames that lost sub-frames the full-resolution matches did not
+    /// confirm ([`GUIDED_SUB_MIN_SHARE`]): (video frame, sub-frames left out, sub-frames
+    /// it had).
+    #[serde(default)]
+    pub unmatched_subframes: Vec<(u64, usize, usize)>,
     /// Largest offset from the reference photo among the frames to tie, before the
     /// first round, mm.
     pub offset_before_mm: f64,
@@ -86,13 +99,22 @@ impl PlaneTieSummary {
     /// One line for the summary.
     pub fn describe(&self) -> String {
         format!(
-            "plane ties: {} frames without reference-photo feature matches of their own; {} of them first tied by {} blocks matched with the reference photo on the plane; {} confirmed by {} full-resolution matches with it, {} left out unconfirmed; solved again {} time(s); largest self-check offset of the tied frames {:.2} -> {:.2} mm",
+            "plane ties: {} frames without reference-photo feature matches of their own; {} of them first tied by {} blocks matched with the reference photo on the plane; {} confirmed by {} full-resolution matches with it, {} left out unconfirmed; {}solved again {} time(s); largest self-check offset of the tied frames {:.2} -> {:.2} mm",
             self.untied,
             self.block_frames,
             self.ties,
             self.guided_frames,
             self.guided_matches,
             self.unconfirmed.len(),
+            if self.unmatched_subframes.is_empty() {
+                String::new()
+            } else {
+                format!(
+                    "{} sub-frames of {} confirmed frames left out where under a quarter of their features matched; ",
+                    self.unmatched_subframes.iter().map(|u| u.1).sum::<usize>(),
+                    self.unmatched_subframes.len()
+                )
+            },
             self.rounds,
             self.offset_before_mm,
             self.offset_after_mm
@@ -186,6 +208,9 @@ pub(crate) struct Guided {
     pub tried: usize,
     /// Fewest matches that anchor a frame ([`fine_min`]).
     pub min: usize,
+    /// Sub-frames (rectangles) where at least [`GUIDED_SUB_MIN_TRIED`] features were
+    /// tried and under [`GUIDED_SUB_MIN_SHARE`] of them matched.
+    pub unmatched: Vec<[f64; 4]>,
 }
 
 impl Guided {
@@ -219,6 +244,7 @@ pub(crate) fn guided_matches(
         verified: 0,
         tried,
         min,
+        unmatched: Vec::new(),
     };
     let Some(grey) = f.grey.as_deref() else {
         return Ok(none(0));
@@ -263,6 +289,8 @@ pub(crate) fn guided_matches(
     let tried: usize = groups.iter().map(Vec::len).sum();
     let mut src: Vec<[f64; 2]> = Vec::new();
     let mut dst: Vec<[f64; 2]> = Vec::new();
+    let mut src_block: Vec<usize> = Vec::new();
+    let tried_in: Vec<usize> = groups.iter().map(Vec::len).collect();
     for (b, group) in groups.into_iter().enumerate() {
         if group.is_empty() {
             continue;
@@ -277,6 +305,7 @@ pub(crate) fn guided_matches(
         ) {
             src.push(p);
             dst.push([q.x, q.y]);
+            src_block.push(b);
         }
     }
     if src.len() < min {
@@ -296,6 +325,17 @@ pub(crate) fn guided_matches(
     else {
         return Ok(none(tried));
     };
+    let mut matched_in = vec![0usize; blocks.len()];
+    for (&b, _) in src_block.iter().zip(&inliers).filter(|(_, i)| **i) {
+        matched_in[b] += 1;
+    }
+    let unmatched: Vec<[f64; 4]> = (0..blocks.len())
+        .filter(|&b| {
+            tried_in[b] >= GUIDED_SUB_MIN_TRIED
+                && (matched_in[b] as f64) < GUIDED_SUB_MIN_SHARE * tried_in[b] as f64
+        })
+        .map(|b| blocks[b].0)
+        .collect();
     let kept: Vec<(Vec2, Vec2)> = (0..src.len())
         .filter(|&k| inliers[k])
         .filter_map(|k| {
@@ -315,6 +355,7 @@ pub(crate) fn guided_matches(
             verified,
             tried,
             min,
+            unmatched,
         }
     } else {
         none(tried)
@@ -350,6 +391,7 @@ pub(crate) fn tie_to_plane(
     let mut all = PlaneTies::new();
     let mut summary = PlaneTieSummary::default();
     let mut confirmed = std::collections::BTreeSet::new();
+    let mut unmatched = std::collections::HashMap::new();
     let mut solve_again = |all: &PlaneTies,
                            result: &mut Registration,
                            checks: &mut Vec<FrameCheck>,
@@ -419,6 +461,9 @@ pub(crate) fn tie_to_plane(
         summary.guided_frames += 1;
         summary.guided_matches += g.matches.len();
         confirmed.insert(key);
+        if !g.unmatched.is_empty() {
+            unmatched.insert(key, g.unmatched);
+        }
         all.insert(
             key,
             g.matches
@@ -479,6 +524,41 @@ pub(crate) fn tie_to_plane(
         .filter_map(|k| kept.get(k))
         .filter_map(|&k| checks.get(k).and_then(|c| c.offset_mm()))
         .fold(0.0, f64::max);
+    // Sub-frames of confirmed frames where the full-resolution matches found under a
+    // quarter of the features tried are left out; a frame left with too few goes.
+    let mut drop = std::collections::HashSet::new();
+    for (k, f) in result.frames.iter().enumerate() {
+        let Some(rects) = unmatched.get(&(f.stream, f.index)) else {
+            continue;
+        };
+        let m = &mut result.mappings[k];
+        let before = m.len();
+        m.retain(|(r, _)| !rects.contains(r));
+        if m.len() == before {
+            continue;
+        }
+        summary
+            .unmatched_subframes
+            .push((f.index, before - m.len(), before));
+        if (m.len() as f64) < crate::support::MIN_SUPPORTED_SHARE * before as f64 {
+            drop.insert(k);
+            trace.set_fate(f, crate::trace::Fate::Unconfirmed);
+            if f.stream == 0 {
+                summary.unconfirmed.push(f.index);
+            }
+        }
+    }
+    if !drop.is_empty() {
+        summary.unconfirmed.sort_unstable();
+        let renumber = crate::checks::remove_frames(&mut result, &drop, |d, n| d.unconfirmed += n);
+        checks = checks
+            .into_iter()
+            .filter_map(|mut c| {
+                c.kept_index = renumber(c.kept_index)?;
+                Some(c)
+            })
+            .collect();
+    }
     result.plane_tied = confirmed;
     result.plane_ties = Some(summary);
     Ok((result, checks))
@@ -651,6 +731,24 @@ mod tests {
         // The map was off by 0.042 cm (0.42 reference px).
         let (median, worst) = (err[err.len() / 2], err[err.len() - 1]);
         assert!(median < 0.003 && worst < 0.0125, "{median} {worst}");
+
+        // A frame bent at one side: its right half's map 1 cm off. That half matches
+        // nothing and is named; the left half, placed as before, is not.
+        let mut bent = off;
+        bent[(0, 2)] += 1.0;
+        let halves = [
+            ([0.0, 0.0, 200.0, 400.0], off),
+            ([200.0, 0.0, 400.0, 400.0], bent),
+        ];
+        let m = guided_matches(&f, &halves, (&reference, &plane_from_ref), &cfg, 0.05).unwrap();
+        assert!(m.verified > 50, "{} of {}", m.verified, m.tried);
+        assert_eq!(
+            m.unmatched,
+            vec![halves[1].0],
+            "{} of {}",
+            m.verified,
+            m.tried
+        );
 
         // Without the frame's patch image there is nothing to match.
         let bare = FrameData { grey: None, ..f };
