@@ -27,11 +27,8 @@ impl Matched {
         lap: &mut dyn FnMut(&str),
         trace: &mut AlignTrace,
     ) -> Result<Registration, AlignError> {
-        let mut again = self.solve(ties, cfg, progress, lap, trace)?;
-        again.marker_hunt = previous.marker_hunt.take();
-        again.marker_corners = previous.marker_corners.take();
-        again.relief = previous.relief.take();
-        Ok(again)
+        let none = std::collections::HashSet::new();
+        self.solve_without(&none, ties, previous, cfg, progress, lap, trace)
     }
 
     /// [`solve_again`](Self::solve_again) without the frames `leave_out` names

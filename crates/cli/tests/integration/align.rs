@@ -5,7 +5,7 @@ use std::path::Path;
 
 use svbrdf_core::capture::{FrameMapping, RegisteredCapture};
 
-use crate::util::{read_json, stderr, svbrdf, temp_dir, tiny_capture};
+use crate::util::{hard_small, read_json, stderr, svbrdf, temp_dir, tiny_capture};
 
 pub(crate) fn align(cap: &Path, out: &Path, extra: &[&str]) -> std::process::Output {
     crate::util::align_synth(cap, out, extra)
@@ -423,19 +423,7 @@ fn hard_small_tiles_align_within_the_issue_18_bounds() {
 /// frame p95.
 #[test]
 fn the_relief_shift_of_leather_is_measured_and_corrected() {
-    let cap = temp_dir().join("leather");
-    let o = svbrdf(&[
-        "synth",
-        "--preset",
-        "hard-small",
-        "--material",
-        "leather",
-        "--seed",
-        "1",
-        "--out",
-        cap.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let cap = hard_small("leather", "1");
     let (with, without) = (temp_dir().join("with"), temp_dir().join("without"));
     let o = align(&cap, &with, &[]);
     assert!(o.status.success(), "{}", stderr(&o));

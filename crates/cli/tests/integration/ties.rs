@@ -2,7 +2,7 @@
 //! and what is left out where the reference photo does not confirm a frame.
 
 use crate::align::{align, alignment_accuracy, tiny_brushed_metal};
-use crate::util::{stderr, svbrdf, temp_dir};
+use crate::util::{hard_small, stderr, temp_dir};
 
 /// Issue 18: markers alone do not confirm a registration. Brushed metal matches
 /// between frames only along its streaks; with the reference photo's matches left out
@@ -60,19 +60,7 @@ fn markers_alone_do_not_confirm_a_registration() {
 /// registration is refused in one line.
 #[test]
 fn plane_ties_register_frames_the_reference_photo_features_do_not_tie() {
-    let cap = temp_dir().join("patchwork");
-    let o = svbrdf(&[
-        "synth",
-        "--preset",
-        "hard-small",
-        "--material",
-        "patchwork",
-        "--seed",
-        "1",
-        "--out",
-        cap.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let cap = hard_small("patchwork", "1");
     let out = temp_dir().join("tied");
     let o = align(&cap, &out, &["--no-reference-matches"]);
     assert!(o.status.success(), "{}", stderr(&o));
@@ -120,19 +108,7 @@ fn plane_ties_register_frames_the_reference_photo_features_do_not_tie() {
 /// 1.70 px; with those sub-frames left out too, 0.83 px (measured).
 #[test]
 fn what_the_reference_photo_does_not_confirm_holds_nothing() {
-    let cap = temp_dir().join("tiles2");
-    let o = svbrdf(&[
-        "synth",
-        "--preset",
-        "hard-small",
-        "--material",
-        "tiles",
-        "--seed",
-        "2",
-        "--out",
-        cap.to_str().unwrap(),
-    ]);
-    assert!(o.status.success(), "{}", stderr(&o));
+    let cap = hard_small("tiles", "2");
     let out = temp_dir().join("markers-only");
     let o = align(&cap, &out, &["--no-reference-matches"]);
     assert!(o.status.success(), "{}", stderr(&o));

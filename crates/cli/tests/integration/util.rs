@@ -224,6 +224,24 @@ pub fn align_synth(cap: &Path, out: &Path, extra: &[&str]) -> Output {
     svbrdf(&refs)
 }
 
+/// A `hard-small` capture of `material` at `seed`, synthesised into a new folder.
+pub fn hard_small(material: &str, seed: &str) -> PathBuf {
+    let cap = temp_dir().join(format!("{material}{seed}"));
+    let o = svbrdf(&[
+        "synth",
+        "--preset",
+        "hard-small",
+        "--material",
+        material,
+        "--seed",
+        seed,
+        "--out",
+        cap.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    cap
+}
+
 /// A JSON file.
 pub fn read_json(p: &Path) -> serde_json::Value {
     serde_json::from_str(&std::fs::read_to_string(p).unwrap()).unwrap()
