@@ -286,11 +286,11 @@ pub(crate) fn guided_matches(
             groups[b].push((p, q));
         }
     }
-    let tried: usize = groups.iter().map(Vec::len).sum();
     let mut src: Vec<[f64; 2]> = Vec::new();
     let mut dst: Vec<[f64; 2]> = Vec::new();
     let mut src_block: Vec<usize> = Vec::new();
     let tried_in: Vec<usize> = groups.iter().map(Vec::len).collect();
+    let tried: usize = tried_in.iter().sum();
     for (b, group) in groups.into_iter().enumerate() {
         if group.is_empty() {
             continue;

@@ -2,7 +2,7 @@
 //! and what is left out where the reference photo does not confirm a frame.
 
 use crate::align::{align, alignment_accuracy, tiny_brushed_metal};
-use crate::util::{hard_small, stderr, temp_dir};
+use crate::util::{hard_small, read_json, stderr, temp_dir};
 
 /// Issue 18: markers alone do not confirm a registration. Brushed metal matches
 /// between frames only along its streaks; with the reference photo's matches left out
@@ -39,8 +39,7 @@ fn markers_alone_do_not_confirm_a_registration() {
             err.contains("are placed only through other frames"),
             "{err}"
         );
-        let rec: serde_json::Value =
-            serde_json::from_slice(&std::fs::read(out.join("align.json")).unwrap()).unwrap();
+        let rec = read_json(&out.join("align.json"));
         assert_eq!(rec["status"], "refused");
     }
     let out = temp_dir().join("with-reference");
@@ -64,8 +63,7 @@ fn plane_ties_register_frames_the_reference_photo_features_do_not_tie() {
     let out = temp_dir().join("tied");
     let o = align(&cap, &out, &["--no-reference-matches"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let rec: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("align.json")).unwrap()).unwrap();
+    let rec = read_json(&out.join("align.json"));
     let ties = &rec["summary"]["plane_ties"];
     assert!(ties["rounds"].as_u64().unwrap() >= 1, "{ties}");
     // Every kept frame is confirmed by full-resolution matches with the reference
@@ -112,8 +110,7 @@ fn what_the_reference_photo_does_not_confirm_holds_nothing() {
     let out = temp_dir().join("markers-only");
     let o = align(&cap, &out, &["--no-reference-matches"]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let rec: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(out.join("align.json")).unwrap()).unwrap();
+    let rec = read_json(&out.join("align.json"));
     let ties = &rec["summary"]["plane_ties"];
     let unconfirmed = ties["unconfirmed"].as_array().unwrap().len();
     assert!(unconfirmed >= 10, "{ties}");
