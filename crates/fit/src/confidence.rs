@@ -21,9 +21,10 @@
 //!   [`NORMAL_FULL_SPREAD`]; 0 below [`MIN_VIEWS`] frames.
 //!
 //! The refinement moves the diffuse albedo and the normal per pixel; the specular lobe
-//! is its cluster's, except (with `refine_specular`) where the peak was seen
-//! unclipped ([`peak_seen`]), so a pixel whose highlight was never seen always carries
-//! its cluster's lobe; the confidence says so.
+//! is its cluster's, except (with `refine_specular`) where the pixel's observations
+//! measure it ([`lobe_measured`]: the peak seen unclipped, or the flank's fall-off), so
+//! a pixel whose highlight was never seen always carries its cluster's lobe; the
+//! confidence says so.
 
 use rayon::prelude::*;
 use svbrdf_core::brdf::{BrdfParams, Prepared};
@@ -35,6 +36,11 @@ pub use svbrdf_core::confidence::{ConfidenceSummary, SpecularSeen, DIFFUSE_FULL_
 pub const MIN_VIEWS: usize = 3;
 /// Observations within one (unclipped) or two lobe widths a pixel needs.
 pub const PEAK_VIEWS: usize = 2;
+/// Ward exponent within which unclipped observations measure a lobe's flank (three lobe
+/// widths: the lobe at `exp(-9)` = 0.01% of its peak).
+pub const LOBE_REACH: f64 = 9.0;
+/// Unclipped observations within [`LOBE_REACH`] a pixel needs for a lobe of its own.
+pub const LOBE_VIEWS: usize = 4;
 /// Specular confidence where the peak was seen unclipped.
 pub const SPECULAR_PEAK: f32 = 1.0;
 /// Specular confidence where only the flank or a clipped peak was seen.
@@ -102,6 +108,67 @@ pub fn peak_seen(obs: &Observations, p: usize, params: &BrdfParams) -> bool {
     pixel_confidence(obs, p, params)[1] >= SPECULAR_PEAK
 }
 
+/// Whether pixel `p`'s own observations measure its lobe under `params`, so that the
+/// per-pixel specular step may fit one: the peak seen unclipped ([`peak_seen`]), or its
+/// flank (at least [`PEAK_VIEWS`] unclipped observations within two lobe widths, and at
+/// least [`LOBE_VIEWS`] within [`LOBE_REACH`]), whose fall-off gives the lobe's width and
+/// height where the peak itself clipped (the 8-bit video clips about half of the
+/// observations near a polished metal's mirror direction; they count in the fit as
+/// lower bounds, but not here). A pixel with either has specular confidence of at least
+/// [`SPECULAR_FLANK`].
+pub fn lobe_measured(obs: &Observations, p: usize, params: &BrdfParams) -> bool {
+    if obs.count(p) < MIN_VIEWS {
+        return false;
+    }
+    let lobe = Lobe::new(params);
+    let (mut peak, mut flank, mut reach) = (0usize, 0usize, 0usize);
+    for o in obs.range(p) {
+        if obs.clipped(o).iter().any(|&c| c) {
+            continue;
+        }
+        let Some(e) = lobe.exponent(&obs.light_view(p, o)) else {
+            continue;
+        };
+        peak += usize::from(e < 1.0);
+        flank += usize::from(e < 4.0);
+        reach += usize::from(e < LOBE_REACH);
+        if peak >= PEAK_VIEWS || (flank >= PEAK_VIEWS && reach >= LOBE_VIEWS) {
+            return true;
+        }
+    }
+    false
+}
+
+/// A pixel's lobe, for measuring observations' half-vectors in lobe widths.
+struct Lobe {
+    frame: svbrdf_core::brdf::ShadingFrame,
+    ax: f64,
+    ay: f64,
+}
+
+impl Lobe {
+    fn new(params: &BrdfParams) -> Self {
+        Self {
+            frame: Prepared::new(*params).frame,
+            ax: params.alpha_x.max(1e-4),
+            ay: params.alpha_y.max(1e-4),
+        }
+    }
+
+    /// The Ward exponent `tan^2 theta_h (cos^2 phi / alpha_x^2 + sin^2 phi / alpha_y^2)`
+    /// of one observation (1: one lobe width from the mirror direction); `None` where the
+    /// half-vector lies below the surface.
+    fn exponent(&self, lv: &svbrdf_core::brdf::LightView) -> Option<f64> {
+        let h = lv.light + lv.view;
+        let (hn, ht, hb) = (
+            h.dot(&self.frame.n),
+            h.dot(&self.frame.t),
+            h.dot(&self.frame.b),
+        );
+        (hn > 1e-9).then(|| (ht / hn / self.ax).powi(2) + (hb / hn / self.ay).powi(2))
+    }
+}
+
 /// The share of `pixels` (at most `max` of them, spread evenly) whose highlight under
 /// `params` was seen at its peak or on its flank (specular confidence above 0): how
 /// much of a lobe the observations constrain at all.
@@ -128,24 +195,20 @@ fn pixel_confidence(obs: &Observations, p: usize, params: &BrdfParams) -> [f32; 
     if n < MIN_VIEWS {
         return [diffuse, 0.0, 0.0];
     }
-    let frame = Prepared::new(*params).frame;
-    let (ax, ay) = (params.alpha_x.max(1e-4), params.alpha_y.max(1e-4));
+    let lobe = Lobe::new(params);
     let (mut peak, mut peak_clipped, mut flank) = (0usize, 0usize, 0usize);
     let (mut sx, mut sy, mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
     for o in range {
         let lv = obs.light_view(p, o);
-        let (l, x, y) = (lv.light, lv.light.x, lv.light.y);
+        let (x, y) = (lv.light.x, lv.light.y);
         sx += x;
         sy += y;
         sxx += x * x;
         syy += y * y;
         sxy += x * y;
-        let h = l + lv.view;
-        let (hn, ht, hb) = (h.dot(&frame.n), h.dot(&frame.t), h.dot(&frame.b));
-        if hn <= 1e-9 {
+        let Some(e) = lobe.exponent(&lv) else {
             continue;
-        }
-        let e = (ht / hn / ax).powi(2) + (hb / hn / ay).powi(2);
+        };
         if e < 1.0 {
             if obs.clipped(o).iter().any(|&c| c) {
                 peak_clipped += 1;

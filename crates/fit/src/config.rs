@@ -182,11 +182,14 @@ pub struct FitConfig {
     /// region that keeps a pixel's normal near its cluster's. Without it a few pixels
     /// with a sharp specular lobe tilt to the bound and light up under oblique light.
     pub refine_max_normal_change_deg: f64,
-    /// After the lobe refits, give each pixel whose highlight peak was seen unclipped
-    /// (at least two observations within one lobe width of its mirror direction) its
-    /// own lobe: specular albedo and roughness refined with the diffuse albedo and
-    /// normal, pulled towards the cluster's by the same prior. Elsewhere the cluster's
-    /// lobe stays: nothing measured it. Measured on the 20 s `paper` capture (true
+    /// After the lobe refits, give each pixel whose observations measure its lobe its
+    /// own lobe (`confidence::lobe_measured`: at least two unclipped observations
+    /// within one lobe width of its mirror direction, or, where the peak clipped, at
+    /// least two within two widths and four within three): specular albedo and
+    /// roughness refined with the diffuse albedo and normal, pulled towards the
+    /// cluster's by the same prior. Elsewhere the cluster's lobe stays: nothing
+    /// measured it. The flank rule (session 43) lowered the `paper` preset's
+    /// brushed-metal light at 1 mm from 104% to about 82% (docs/BENCHMARKS.md). Measured on the 20 s `paper` capture (true
     /// registration): diffuse RMSE 0.0237 -> 0.0216, normal 2.13 -> 2.08 degrees,
     /// relighting at 1 mm [18, 128, 22, 36]% -> [17, 127, 22, 34]%, for 2.6 million
     /// pixels with their own lobe and about 25-40 s; on 23 `tiny` and `hard-small`

@@ -617,11 +617,81 @@ mod tests {
                 "pixel {px}: cluster lobe {a}, own lobe {b}, truth 0.42"
             );
         }
-        // A pixel far from the patch whose peak was never seen keeps its cluster's lobe.
+        // A pixel whose lobe its observations do not measure keeps its cluster's lobe.
         let unseen = (0..obs.pixels())
-            .find(|&p| obs.count(p) > 0 && !confidence::peak_seen(&obs, p, &own.params[p]));
+            .find(|&p| obs.count(p) > 0 && !confidence::lobe_measured(&obs, p, &own.params[p]));
         if let Some(p) = unseen {
             assert_eq!(own.params[p].rho_s, plain.params[p].rho_s, "pixel {p}");
+        }
+        assert!(own.params.iter().all(BrdfParams::is_physical));
+    }
+
+    #[test]
+    fn a_clipped_peak_is_measured_from_its_flank() {
+        // Under a light bright enough to clip the shiny half's peak in every frame near
+        // its mirror direction (censored observations), a 2 x 2 patch reflecting 40%
+        // more specular light: no pixel sees its peak unclipped, but the flank's
+        // fall-off measures the lobe, so the patch gets lobes of its own.
+        const LIGHT: f64 = 300.0;
+        let (mut obs, cap, truth) = two_materials_rendered(false, LIGHT);
+        let patch: Vec<usize> = [(26, 21), (27, 21), (26, 22), (27, 22)]
+            .iter()
+            .map(|(x, y)| y * 40 + x)
+            .collect();
+        let brighter = BrdfParams {
+            rho_s: [0.42; 3],
+            ..truth[1]
+        };
+        let sat = obs.saturation;
+        for &px in &patch {
+            let prep = Prepared::new(brighter);
+            for o in obs.range(px) {
+                let v = Ward.radiance(&prep, &obs.light_view(px, o), LIGHT);
+                obs.rgb[o] = v.map(|x| {
+                    if x >= sat {
+                        observations::CLIPPED
+                    } else {
+                        (x * observations::RGB_SCALE).round() as u16
+                    }
+                });
+            }
+        }
+        let clipped_peak: Vec<usize> = patch
+            .iter()
+            .copied()
+            .filter(|&p| {
+                !confidence::peak_seen(&obs, p, &brighter)
+                    && confidence::lobe_measured(&obs, p, &brighter)
+                    && obs.range(p).any(|o| obs.clipped(o).iter().all(|&c| c))
+            })
+            .collect();
+        assert!(
+            !clipped_peak.is_empty(),
+            "no patch pixel has a clipped peak and a measured flank"
+        );
+        let base = FitConfig {
+            select_folds: 0,
+            refine_specular: false,
+            ..FitConfig::default()
+        };
+        let (plain, _) = fit(&mut obs.clone(), &cap, &base, &NoProgress).unwrap();
+        let cfg = FitConfig {
+            refine_specular: true,
+            ..base
+        };
+        let (own, summary) = fit(&mut obs.clone(), &cap, &cfg, &NoProgress).unwrap();
+        assert!(summary.pixel_lobes > 0);
+        let peak = |p: &BrdfParams| p.rho_s[1] / (p.alpha_x * p.alpha_y);
+        let truth_peak = peak(&brighter);
+        for &px in &clipped_peak {
+            let (a, b) = (peak(&plain.params[px]), peak(&own.params[px]));
+            eprintln!(
+                "pixel {px}: peak of the cluster lobe {a:.2}, own {b:.2}, truth {truth_peak:.2}"
+            );
+            assert!(
+                (b - truth_peak).abs() < 0.6 * (a - truth_peak).abs(),
+                "pixel {px}: peak of the cluster lobe {a}, own {b}, truth {truth_peak}"
+            );
         }
         assert!(own.params.iter().all(BrdfParams::is_physical));
     }

@@ -396,13 +396,14 @@ pub(crate) fn refine_stage(
             before_specular = Some(params.clone());
         }
         if cfg.refine_specular && !cfg.diffuse_only {
-            // Where the highlight's peak was seen unclipped, the pixel's own lobe:
-            // specular albedo and roughness too, pulled towards its cluster's.
+            // Where the pixel's own observations measure its lobe (peak seen
+            // unclipped, or its flank), the pixel's own lobe: specular albedo and
+            // roughness too, pulled towards its cluster's.
             let t = Instant::now();
             progress.stage("per-pixel specular", 1);
             let peak: Vec<bool> = (0..npx)
                 .into_par_iter()
-                .map(|p| covered[p] && confidence::peak_seen(obs, p, &params[p]))
+                .map(|p| covered[p] && confidence::lobe_measured(obs, p, &params[p]))
                 .collect();
             pixel_lobes = peak.iter().filter(|&&b| b).count();
             refine(

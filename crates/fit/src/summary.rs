@@ -131,8 +131,9 @@ pub struct FitSummary {
     /// Clusters whose maps use a refitted lobe.
     #[serde(default)]
     pub refitted_clusters: usize,
-    /// Pixels with a lobe of their own (`refine_specular`: where the highlight's peak
-    /// was seen unclipped); the others carry their cluster's.
+    /// Pixels with a lobe of their own (`refine_specular`: where their observations
+    /// measure it, at the peak unclipped or on the flank); the others carry their
+    /// cluster's.
     #[serde(default)]
     pub pixel_lobes: usize,
     /// RMS error of the cluster solutions (before refinement, linear), over the
