@@ -567,16 +567,42 @@ mod tests {
         assert!((ratio - 0.8).abs() < 0.05, "ratio {ratio}");
     }
 
+    /// The 2 x 2 patch of [`two_materials`]' shiny half that the per-pixel lobe tests
+    /// make glossier than its cluster (around x 0.7, y -0.15 cm).
+    fn glossier_patch() -> Vec<usize> {
+        [(26, 21), (27, 21), (26, 22), (27, 22)]
+            .iter()
+            .map(|(x, y)| y * 40 + x)
+            .collect()
+    }
+
+    /// Fits of `obs` (no choice of settings) with every pixel on its cluster's lobe, and
+    /// with `refine_specular`.
+    fn without_and_with_own_lobes(
+        obs: &Observations,
+        cap: &RegisteredCapture,
+    ) -> ((FittedMaps, FitSummary), (FittedMaps, FitSummary)) {
+        let base = FitConfig {
+            select_folds: 0,
+            refine_specular: false,
+            ..FitConfig::default()
+        };
+        let cfg = FitConfig {
+            refine_specular: true,
+            ..base.clone()
+        };
+        let plain = fit(&mut obs.clone(), cap, &base, &NoProgress).unwrap();
+        let own = fit(&mut obs.clone(), cap, &cfg, &NoProgress).unwrap();
+        (plain, own)
+    }
+
     #[test]
     fn pixels_whose_peak_was_seen_get_their_own_lobe_with_refine_specular() {
         let (mut obs, cap, truth) = two_materials();
         // A 2 x 2 patch of the shiny half reflects 40% more specular light: too small
         // to be its own cluster, so only a per-pixel lobe can follow it. It lies where
         // the camera above the centre sees its highlight (x 0.7, y -0.15 cm).
-        let patch: Vec<usize> = [(26, 21), (27, 21), (26, 22), (27, 22)]
-            .iter()
-            .map(|(x, y)| y * 40 + x)
-            .collect();
+        let patch = glossier_patch();
         let brighter = BrdfParams {
             rho_s: [0.42; 3],
             ..truth[1]
@@ -590,17 +616,7 @@ mod tests {
                 }
             }
         }
-        let base = FitConfig {
-            select_folds: 0,
-            refine_specular: false,
-            ..FitConfig::default()
-        };
-        let (plain, plain_summary) = fit(&mut obs.clone(), &cap, &base, &NoProgress).unwrap();
-        let cfg = FitConfig {
-            refine_specular: true,
-            ..base
-        };
-        let (own, summary) = fit(&mut obs.clone(), &cap, &cfg, &NoProgress).unwrap();
+        let ((plain, plain_summary), (own, summary)) = without_and_with_own_lobes(&obs, &cap);
         assert_eq!(plain_summary.pixel_lobes, 0);
         assert!(summary.pixel_lobes > 0);
         let seen: Vec<usize> = patch
@@ -634,10 +650,7 @@ mod tests {
         // fall-off measures the lobe, so the patch gets lobes of its own.
         const LIGHT: f64 = 300.0;
         let (mut obs, cap, truth) = two_materials_rendered(false, LIGHT);
-        let patch: Vec<usize> = [(26, 21), (27, 21), (26, 22), (27, 22)]
-            .iter()
-            .map(|(x, y)| y * 40 + x)
-            .collect();
+        let patch = glossier_patch();
         let brighter = BrdfParams {
             rho_s: [0.42; 3],
             ..truth[1]
@@ -669,17 +682,7 @@ mod tests {
             !clipped_peak.is_empty(),
             "no patch pixel has a clipped peak and a measured flank"
         );
-        let base = FitConfig {
-            select_folds: 0,
-            refine_specular: false,
-            ..FitConfig::default()
-        };
-        let (plain, _) = fit(&mut obs.clone(), &cap, &base, &NoProgress).unwrap();
-        let cfg = FitConfig {
-            refine_specular: true,
-            ..base
-        };
-        let (own, summary) = fit(&mut obs.clone(), &cap, &cfg, &NoProgress).unwrap();
+        let ((plain, _), (own, summary)) = without_and_with_own_lobes(&obs, &cap);
         assert!(summary.pixel_lobes > 0);
         let peak = |p: &BrdfParams| p.rho_s[1] / (p.alpha_x * p.alpha_y);
         let truth_peak = peak(&brighter);
