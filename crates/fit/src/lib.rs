@@ -567,6 +567,21 @@ mod tests {
         assert!((ratio - 0.8).abs() < 0.05, "ratio {ratio}");
     }
 
+    /// Drops the observations whose `keep` is false.
+    fn keep_only(obs: &mut Observations, keep: &[bool]) {
+        let mut start = vec![0];
+        let (mut f, mut r, mut k) = (Vec::new(), Vec::new(), Vec::new());
+        for px in 0..obs.pixels() {
+            for o in obs.range(px).filter(|o| keep[*o]) {
+                f.push(obs.frame[o]);
+                r.push(obs.rgb[o]);
+                k.push(obs.key[o]);
+            }
+            start.push(f.len());
+        }
+        (obs.start, obs.frame, obs.rgb, obs.key) = (start, f, r, k);
+    }
+
     /// The 2 x 2 patch of [`two_materials`]' shiny half that the per-pixel lobe tests
     /// make glossier than its cluster (around x 0.7, y -0.15 cm).
     fn glossier_patch() -> Vec<usize> {
@@ -682,6 +697,28 @@ mod tests {
             !clipped_peak.is_empty(),
             "no patch pixel has a clipped peak and a measured flank"
         );
+        // Seen by fewer frames, the same flank gives no lobe of its own: keep each patch
+        // pixel's brightest observations (the clipped peak and the flank), one short of
+        // `FLANK_MIN_VIEWS`, then one more.
+        for views in [confidence::FLANK_MIN_VIEWS - 1, confidence::FLANK_MIN_VIEWS] {
+            let mut fewer = obs.clone();
+            let mut keep = vec![true; fewer.len()];
+            for &p in &clipped_peak {
+                let mut by_value: Vec<usize> = fewer.range(p).collect();
+                by_value.sort_by_key(|&o| std::cmp::Reverse(fewer.rgb[o][1]));
+                for &o in &by_value[views..] {
+                    keep[o] = false;
+                }
+            }
+            keep_only(&mut fewer, &keep);
+            for &p in &clipped_peak {
+                assert_eq!(
+                    confidence::lobe_measured(&fewer, p, &brighter),
+                    views >= confidence::FLANK_MIN_VIEWS,
+                    "pixel {p} seen {views} times"
+                );
+            }
+        }
         let ((plain, _), (own, summary)) = without_and_with_own_lobes(&obs, &cap);
         assert!(summary.pixel_lobes > 0);
         let peak = |p: &BrdfParams| p.rho_s[1] / (p.alpha_x * p.alpha_y);
@@ -711,17 +748,7 @@ mod tests {
                 }
             }
         }
-        let mut start = vec![0];
-        let (mut f, mut r, mut k) = (Vec::new(), Vec::new(), Vec::new());
-        for px in 0..obs.pixels() {
-            for o in obs.range(px).filter(|o| keep[*o]) {
-                f.push(obs.frame[o]);
-                r.push(obs.rgb[o]);
-                k.push(obs.key[o]);
-            }
-            start.push(f.len());
-        }
-        (obs.start, obs.frame, obs.rgb, obs.key) = (start, f, r, k);
+        keep_only(&mut obs, &keep);
         let (maps, summary) =
             fit(&mut obs.clone(), &cap, &FitConfig::default(), &NoProgress).unwrap();
         assert_eq!(summary.covered_pixels, 40 * 40 - 9);
