@@ -119,11 +119,10 @@ pub fn peak_seen(obs: &Observations, p: usize, params: &BrdfParams) -> bool {
 /// per-pixel specular step may fit one: the peak seen unclipped ([`peak_seen`]), or, in
 /// at least [`FLANK_MIN_VIEWS`] frames, its flank (at least [`PEAK_VIEWS`] unclipped
 /// observations within two lobe widths, and at least [`LOBE_VIEWS`] within
-/// [`LOBE_REACH`]), whose fall-off gives the lobe's width and
-/// height where the peak itself clipped (the 8-bit video clips about half of the
-/// observations near a polished metal's mirror direction; they count in the fit as
-/// lower bounds, but not here). A pixel with either has specular confidence of at least
-/// [`SPECULAR_FLANK`].
+/// [`LOBE_REACH`]), whose fall-off gives the lobe's width and height where the peak
+/// itself clipped (the 8-bit video clips about half of the observations near a polished
+/// metal's mirror direction; they count in the fit as lower bounds, but not here). A
+/// pixel with either has specular confidence of at least [`SPECULAR_FLANK`].
 pub fn lobe_measured(obs: &Observations, p: usize, params: &BrdfParams) -> bool {
     let n = obs.count(p);
     if n < MIN_VIEWS {

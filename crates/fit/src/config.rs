@@ -187,13 +187,14 @@ pub struct FitConfig {
     /// within one lobe width of its mirror direction, or, where the peak clipped and at
     /// least 16 frames saw the pixel, at least two within two widths and four within
     /// three): specular albedo and roughness refined with the diffuse albedo and
-    /// normal, pulled towards the cluster's by the same prior. Elsewhere the cluster's lobe stays: nothing
-    /// measured it. Measured on the 20 s `paper` capture (true registration), with the
-    /// peak rule alone (session 14): diffuse RMSE 0.0237 -> 0.0216, normal 2.13 -> 2.08
-    /// degrees, relighting at 1 mm [18, 128, 22, 36]% -> [17, 127, 22, 34]%; with the
-    /// flank rule too (session 43): relighting at 1 mm [16, 104, 17, 24]% ->
-    /// [11, 83, 16, 14]%, normal 2.04 -> 1.99 degrees, 99.8% of the pixels with their
-    /// own lobe (seen by 6-9 frames, `hard-small` pixels keep the peak rule alone).
+    /// normal, pulled towards the cluster's by the same prior. Elsewhere the cluster's
+    /// lobe stays: nothing measured it. Measured on the 20 s `paper` capture (true
+    /// registration), with the peak rule alone (session 14): diffuse RMSE 0.0237 ->
+    /// 0.0216, normal 2.13 -> 2.08 degrees, relighting at 1 mm [18, 128, 22, 36]% ->
+    /// [17, 127, 22, 34]%; with the flank rule too (session 43): relighting at 1 mm
+    /// [16, 104, 17, 24]% -> [11, 83, 16, 14]%, normal 2.04 -> 1.99 degrees, 99.8% of
+    /// the pixels with their own lobe (seen by 6-9 frames, `hard-small` pixels keep the
+    /// peak rule alone).
     pub refine_specular: bool,
     /// Robust per-pixel refinement: Cauchy weights with this scale, in units of the
     /// pixel's robust residual spread at its cluster's solution (0: plain least squares).
