@@ -36,8 +36,11 @@ pub use svbrdf_core::confidence::{ConfidenceSummary, SpecularSeen, DIFFUSE_FULL_
 pub const MIN_VIEWS: usize = 3;
 /// Observations within one (unclipped) or two lobe widths a pixel needs.
 pub const PEAK_VIEWS: usize = 2;
-/// Ward exponent within which unclipped observations measure a lobe's flank (three lobe
-/// widths: the lobe at `exp(-9)` = 0.01% of its peak).
+/// Ward exponent of the flank: observations within two lobe widths (the lobe above
+/// `exp(-4)` = 2% of its peak).
+pub const FLANK_REACH: f64 = 4.0;
+/// Ward exponent within which unclipped observations measure a lobe's fall-off (three
+/// lobe widths: the lobe at `exp(-9)` = 0.01% of its peak).
 pub const LOBE_REACH: f64 = 9.0;
 /// Unclipped observations within [`LOBE_REACH`] a pixel needs for a lobe of its own.
 pub const LOBE_VIEWS: usize = 4;
@@ -139,7 +142,7 @@ pub fn lobe_measured(obs: &Observations, p: usize, params: &BrdfParams) -> bool 
             continue;
         };
         peak += usize::from(e < 1.0);
-        flank += usize::from(e < 4.0);
+        flank += usize::from(e < FLANK_REACH);
         reach += usize::from(e < LOBE_REACH);
         if peak >= PEAK_VIEWS || (by_flank && flank >= PEAK_VIEWS && reach >= LOBE_VIEWS) {
             return true;
@@ -225,7 +228,7 @@ fn pixel_confidence(obs: &Observations, p: usize, params: &BrdfParams) -> [f32; 
                 peak += 1;
             }
         }
-        if e < 4.0 {
+        if e < FLANK_REACH {
             flank += 1;
         }
     }

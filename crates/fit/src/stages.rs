@@ -401,15 +401,15 @@ pub(crate) fn refine_stage(
             // roughness too, pulled towards its cluster's.
             let t = Instant::now();
             progress.stage("per-pixel specular", 1);
-            let peak: Vec<bool> = (0..npx)
+            let measured: Vec<bool> = (0..npx)
                 .into_par_iter()
                 .map(|p| covered[p] && confidence::lobe_measured(obs, p, &params[p]))
                 .collect();
-            pixel_lobes = peak.iter().filter(|&&b| b).count();
+            pixel_lobes = measured.iter().filter(|&&b| b).count();
             refine(
                 &ctx,
                 &mut params,
-                &peak,
+                &measured,
                 anchor,
                 cfg.refine_iterations,
                 Freedom::FULL,
