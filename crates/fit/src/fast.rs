@@ -26,6 +26,7 @@ pub struct PixelBatch {
     pub robust: Vec<f32>,
     shapes: Shapes,
     scratch: Vec<f32>,
+    rows: Rows<4>,
 }
 
 impl PixelBatch {
@@ -128,6 +129,37 @@ fn r0_sq(r: f32, cen: f32) -> f32 {
     r * r
 }
 
+/// A padded buffer as arrays of [`LANES`] values (the padding makes its length a
+/// multiple of [`LANES`]).
+#[inline(always)]
+fn lanes(v: &[f32]) -> std::slice::Iter<'_, [f32; LANES]> {
+    v.as_chunks::<LANES>().0.iter()
+}
+
+/// `N` scratch buffers of per-observation values, kept between calls.
+#[derive(Debug, Clone)]
+struct Rows<const N: usize>([Vec<f32>; N]);
+
+impl<const N: usize> Default for Rows<N> {
+    fn default() -> Self {
+        Self(std::array::from_fn(|_| Vec::new()))
+    }
+}
+
+impl<const N: usize> Rows<N> {
+    /// The buffers, each `n` long (their values are whatever the last call left).
+    fn get(&mut self, n: usize) -> [&mut [f32]; N] {
+        let mut it = self.0.iter_mut();
+        std::array::from_fn(|_| match it.next() {
+            Some(v) => {
+                v.resize(n, 0.0);
+                &mut v[..n]
+            }
+            None => &mut [],
+        })
+    }
+}
+
 /// Sum with [`LANES`] partial sums, so that the loop vectorises.
 fn lane_sum(v: &[f32]) -> f64 {
     let mut acc = [0f64; LANES];
@@ -154,6 +186,7 @@ pub struct SampleBatch {
     censor: [Vec<f32>; 3],
     weight: Vec<f32>,
     shapes: Shapes,
+    rows: Rows<7>,
 }
 
 type Mat10 = SMatrix<f64, N_PARAMS, N_PARAMS>;
@@ -253,12 +286,16 @@ impl SampleBatch {
                 &self.censor[c][..n],
                 &self.weight[..n],
             );
-            for base in (0..n).step_by(LANES) {
+            // The weighted squares in one pass (it vectorises), then summed in lanes.
+            let [sq, ..] = self.rows.get(n);
+            for i in 0..n {
+                let r = kd * d[i] + ks * s[i] - y[i];
+                let r = r - cen[i] * r.max(0.0);
+                sq[i] = wt[i] * r * r;
+            }
+            for sq in lanes(sq) {
                 for j in 0..LANES {
-                    let i = base + j;
-                    let r = kd * d[i] + ks * s[i] - y[i];
-                    let r = r - cen[i] * r.max(0.0);
-                    acc[j] += f64::from(wt[i] * r * r);
+                    acc[j] += f64::from(sq[j]);
                 }
             }
         }
@@ -302,33 +339,47 @@ impl SampleBatch {
                 &sh.rel[2][..n],
                 &sh.rel[3][..n],
             );
-            for base in (0..n).step_by(LANES) {
+            // The weighted Jacobian rows and residuals in one pass over every sample
+            // (it vectorises as the shape terms do), then their products in lanes.
+            let [j0, j1, j2, j3, j4, j5, res] = self.rows.get(n);
+            for i in 0..n {
+                let r = ic * (rd * d[i] + rs * s[i]) - y[i];
+                let live = 1.0 - cen[i] * f32::from(u8::from(r > 0.0));
+                let sw = wt[i].sqrt() * live;
+                res[i] = r * sw;
+                let ss = ic * rs * s[i] * sw;
+                j0[i] = ic * d[i] * sw;
+                j1[i] = ic * s[i] * sw;
+                j2[i] = ss * r0[i];
+                j3[i] = ss * r1[i];
+                j4[i] = ic * rd * dd0[i] * sw + ss * r2[i];
+                j5[i] = ic * rd * dd1[i] * sw + ss * r3[i];
+            }
+            for ((d, s), (y, (cen, wt))) in lanes(d)
+                .zip(lanes(s))
+                .zip(lanes(y).zip(lanes(cen).zip(lanes(wt))))
+            {
                 for l in 0..LANES {
-                    let i = base + l;
-                    let r = ic * (rd * d[i] + rs * s[i]) - y[i];
-                    let live = 1.0 - cen[i] * f32::from(u8::from(r > 0.0));
-                    let sw = wt[i].sqrt() * live;
-                    let r = r * sw;
-                    let ss = ic * rs * s[i] * sw;
-                    let jv = [
-                        ic * d[i] * sw,
-                        ic * s[i] * sw,
-                        ss * r0[i],
-                        ss * r1[i],
-                        ic * rd * dd0[i] * sw + ss * r2[i],
-                        ic * rd * dd1[i] * sw + ss * r3[i],
-                    ];
-                    acc_cost[l] +=
-                        f64::from(wt[i] * r0_sq(ic * (rd * d[i] + rs * s[i]) - y[i], cen[i]));
-                    let mut m = 1;
-                    for x in 0..6 {
-                        for y2 in x..6 {
-                            acc[m][l] += jv[x] * jv[y2];
-                            m += 1;
+                    let r = ic * (rd * d[l] + rs * s[l]) - y[l];
+                    acc_cost[l] += f64::from(wt[l] * r0_sq(r, cen[l]));
+                }
+            }
+            let [j0, j1, j2, j3, j4, j5, res] = [j0, j1, j2, j3, j4, j5, res].map(|v| &*v);
+            let jv = [j0, j1, j2, j3, j4, j5].map(|v| v.as_chunks::<LANES>().0);
+            for (k, res) in lanes(res).enumerate() {
+                let block = jv.map(|v| v[k]);
+                let mut m = 1;
+                for x in 0..6 {
+                    for y2 in x..6 {
+                        for l in 0..LANES {
+                            acc[m][l] += block[x][l] * block[y2][l];
                         }
+                        m += 1;
                     }
-                    for x in 0..6 {
-                        acc[22 + x][l] += jv[x] * r;
+                }
+                for x in 0..6 {
+                    for l in 0..LANES {
+                        acc[22 + x][l] += block[x][l] * res[l];
                     }
                 }
             }
@@ -422,7 +473,7 @@ fn shape_terms(b: &mut PixelBatch, p: &BrdfParams) {
 
 /// [`linearise`] from shape terms already evaluated under `p` (a new set of robust
 /// weights needs no new evaluation of the model).
-fn accumulate(b: &PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, Mat5, Vec5) {
+fn accumulate(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, Mat5, Vec5) {
     let n = b.geom.padded_len();
     let sh = &b.shapes;
     let mut a = Mat5::zeros();
@@ -443,27 +494,31 @@ fn accumulate(b: &PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, Mat5
             &sh.rel[2][..n],
             &sh.rel[3][..n],
         );
-        for base in (0..n).step_by(LANES) {
+        // The weighted residuals and Jacobian rows in one pass over every observation
+        // (it vectorises as the shape terms do), then their products in lanes.
+        let [rr, jd, j0, j1] = b.rows.get(n);
+        for i in 0..n {
+            let r = ic * (rd * d[i] + rs * s[i]) - y[i];
+            // A censored channel predicted above its bound has no residual and no
+            // Jacobian row.
+            let live = (1.0 - cen[i] * f32::from(u8::from(r > 0.0))) * rw[i];
+            rr[i] = r * live;
+            jd[i] = ic * d[i] * live;
+            j0[i] = ic * (rd * dd0[i] + rs * s[i] * r2[i]) * live;
+            j1[i] = ic * (rd * dd1[i] + rs * s[i] * r3[i]) * live;
+        }
+        for (((r, jd), j0), j1) in lanes(rr).zip(lanes(jd)).zip(lanes(j0)).zip(lanes(j1)) {
             for j in 0..LANES {
-                let i = base + j;
-                let r = ic * (rd * d[i] + rs * s[i]) - y[i];
-                // A censored channel predicted above its bound has no residual and
-                // no Jacobian row.
-                let live = (1.0 - cen[i] * f32::from(u8::from(r > 0.0))) * rw[i];
-                let r = r * live;
-                let jd = ic * d[i] * live;
-                let j0 = ic * (rd * dd0[i] + rs * s[i] * r2[i]) * live;
-                let j1 = ic * (rd * dd1[i] + rs * s[i] * r3[i]) * live;
-                acc_cost[j] += f64::from(r * r);
-                acc[1][j] += jd * jd;
-                acc[2][j] += jd * j0;
-                acc[3][j] += jd * j1;
-                acc[4][j] += j0 * j0;
-                acc[5][j] += j0 * j1;
-                acc[6][j] += j1 * j1;
-                acc[7][j] += jd * r;
-                acc[8][j] += j0 * r;
-                acc[9][j] += j1 * r;
+                acc_cost[j] += f64::from(r[j] * r[j]);
+                acc[1][j] += jd[j] * jd[j];
+                acc[2][j] += jd[j] * j0[j];
+                acc[3][j] += jd[j] * j1[j];
+                acc[4][j] += j0[j] * j0[j];
+                acc[5][j] += j0[j] * j1[j];
+                acc[6][j] += j1[j] * j1[j];
+                acc[7][j] += jd[j] * r[j];
+                acc[8][j] += j0[j] * r[j];
+                acc[9][j] += j1[j] * r[j];
             }
         }
         let t: [f64; 10] = acc.map(|l| l.iter().map(|v| f64::from(*v)).sum());
