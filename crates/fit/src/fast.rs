@@ -4,7 +4,7 @@
 //! path to about 1e-5 relative; GGX fits take the generic path.
 
 use nalgebra::{SMatrix, SVector};
-use svbrdf_core::brdf::batch::{shapes, shapes_grad, wide, GeometryBatch, Shapes, WardF32, LANES};
+use svbrdf_core::brdf::batch::{shapes, shapes_grad, GeometryBatch, Shapes, WardF32, LANES};
 use svbrdf_core::brdf::{BrdfParams, Prepared, N_PARAMS};
 
 use crate::observations::{Observations, CLIPPED, RGB_SCALE};
@@ -89,11 +89,6 @@ impl PixelBatch {
 
     /// [`errors`](Self::errors) with `self.shapes` already evaluated under `p`.
     fn errors_from_shapes(&self, p: &BrdfParams, intensity: [f64; 3], out: &mut Vec<f32>) {
-        wide(|| self.errors_in(p, intensity, out));
-    }
-
-    #[inline(always)]
-    fn errors_in(&self, p: &BrdfParams, intensity: [f64; 3], out: &mut Vec<f32>) {
         let n = self.geom.padded_len();
         out.clear();
         out.resize(n, 0.0);
@@ -273,11 +268,6 @@ impl SampleBatch {
 
     /// Weighted sum of squared errors.
     pub fn cost(&mut self, p: &BrdfParams, intensity: [f64; 3]) -> f64 {
-        wide(|| self.cost_in(p, intensity))
-    }
-
-    #[inline(always)]
-    fn cost_in(&mut self, p: &BrdfParams, intensity: [f64; 3]) -> f64 {
         let w = WardF32::new(&Prepared::new(*p));
         shapes(&w, &self.geom, &mut self.shapes);
         let n = self.geom.padded_len();
@@ -316,16 +306,6 @@ impl SampleBatch {
     /// `alpha_y` follows `alpha_x`: its derivative is added to index 6 and index 7 is
     /// left empty), as [`crate::solver::Problem`]'s generic path computes them.
     pub fn linearise(
-        &mut self,
-        p: &BrdfParams,
-        intensity: [f64; 3],
-        isotropic: bool,
-    ) -> (f64, Mat10, Vec10) {
-        wide(|| self.linearise_in(p, intensity, isotropic))
-    }
-
-    #[inline(always)]
-    fn linearise_in(
         &mut self,
         p: &BrdfParams,
         intensity: [f64; 3],
@@ -494,11 +474,6 @@ fn shape_terms(b: &mut PixelBatch, p: &BrdfParams) {
 /// [`linearise`] from shape terms already evaluated under `p` (a new set of robust
 /// weights needs no new evaluation of the model).
 fn accumulate(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, Mat5, Vec5) {
-    wide(|| accumulate_in(b, p, intensity))
-}
-
-#[inline(always)]
-fn accumulate_in(b: &mut PixelBatch, p: &BrdfParams, intensity: [f64; 3]) -> (f64, Mat5, Vec5) {
     let n = b.geom.padded_len();
     let sh = &b.shapes;
     let mut a = Mat5::zeros();

@@ -20,16 +20,6 @@ pub const LANES: usize = 8;
 
 const INV_PI: f32 = std::f32::consts::FRAC_1_PI;
 
-/// Run `f` compiled for the widest vector instructions this CPU has (AVX2 where
-/// present, chosen at run time with `pulp`; the build itself targets baseline x86-64).
-/// The loops over observations take one observation per lane and sum in [`LANES`]
-/// fixed partial sums, and Rust never fuses a multiply and an add on its own, so the
-/// results are the same to the last bit on every CPU; only the speed differs.
-#[inline(always)]
-pub fn wide<R>(f: impl FnOnce() -> R) -> R {
-    pulp::Arch::new().dispatch(f)
-}
-
 /// Observation geometry of one surface point: unit light and view directions and the
 /// inverse squared light distance, one entry per observation, padded with entries
 /// whose shape terms are zero.
@@ -119,11 +109,6 @@ impl GeometryBatch {
 
     /// Normalise the offsets set since [`begin`](Self::begin).
     pub fn finish(&mut self) {
-        wide(|| self.normalise());
-    }
-
-    #[inline(always)]
-    fn normalise(&mut self) {
         let n = self.len;
         let [lx, ly, lz] = &mut self.l;
         let [vx, vy, vz] = &mut self.v;
@@ -241,11 +226,6 @@ fn dot(a: [f32; 3], x: f32, y: f32, z: f32) -> f32 {
 
 /// Shape terms `D` and `S` of every (padded) observation into `out.d`, `out.s`.
 pub fn shapes(w: &WardF32, g: &GeometryBatch, out: &mut Shapes) {
-    wide(|| shapes_in(w, g, out));
-}
-
-#[inline(always)]
-fn shapes_in(w: &WardF32, g: &GeometryBatch, out: &mut Shapes) {
     let n = g.padded_len();
     out.resize(n, false);
     let (iax2, iay2) = (1.0 / (w.ax * w.ax), 1.0 / (w.ay * w.ay));
@@ -275,11 +255,6 @@ fn shapes_in(w: &WardF32, g: &GeometryBatch, out: &mut Shapes) {
 
 /// Shape terms and their derivatives (roughness and normal angles).
 pub fn shapes_grad(w: &WardF32, g: &GeometryBatch, out: &mut Shapes) {
-    wide(|| shapes_grad_in(w, g, out));
-}
-
-#[inline(always)]
-fn shapes_grad_in(w: &WardF32, g: &GeometryBatch, out: &mut Shapes) {
     let n = g.padded_len();
     out.resize(n, true);
     let (iax2, iay2) = (1.0 / (w.ax * w.ax), 1.0 / (w.ay * w.ay));
