@@ -30,6 +30,7 @@ mod refine;
 pub mod render;
 mod resources;
 pub mod room;
+pub mod sample_batch;
 pub mod select;
 pub mod solver;
 mod stages;

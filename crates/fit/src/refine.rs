@@ -5,6 +5,7 @@ use rayon::prelude::*;
 use svbrdf_core::brdf::{BrdfParams, ModelKind};
 
 use crate::fast;
+use crate::sample_batch::SampleBatch;
 use crate::solver::{solve_near_ward, Freedom, Problem, Sample, SolveSettings};
 use crate::tree::Context;
 
@@ -13,8 +14,8 @@ thread_local! {
     pub(crate) static BATCH: std::cell::RefCell<fast::PixelBatch> =
         std::cell::RefCell::new(fast::PixelBatch::default());
     /// Per-thread scratch of the Ward refinement of all ten parameters.
-    static SAMPLES: std::cell::RefCell<fast::SampleBatch> =
-        std::cell::RefCell::new(fast::SampleBatch::default());
+    static SAMPLES: std::cell::RefCell<SampleBatch> =
+        std::cell::RefCell::new(SampleBatch::default());
 }
 
 /// Per-pixel refinement of diffuse albedo and normal (our addition to the paper: its
@@ -157,7 +158,7 @@ mod tests {
             bounds,
             tolerance: 1e-6,
         };
-        let mut batch = fast::SampleBatch::default();
+        let mut batch = SampleBatch::default();
         for px in [0, 4, 8] {
             let samples = pixel_samples(&obs, px);
             let prob = Problem {

@@ -14,7 +14,7 @@ use nalgebra::{SMatrix, SVector};
 use crate::observations::residual;
 use svbrdf_core::brdf::{BrdfModel, BrdfParams, LightView, ModelKind, Prepared, N_PARAMS};
 
-use crate::fast::SampleBatch;
+use crate::sample_batch::SampleBatch;
 
 type Mat = SMatrix<f64, N_PARAMS, N_PARAMS>;
 type Vector = SVector<f64, N_PARAMS>;
