@@ -174,6 +174,13 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
             s.final_clusters
         );
     }
+    if s.pixel_lobes > 0 {
+        say!(
+            "specular lobes of their own (their observations measure the highlight's peak or its flank): {} of {} observed pixels; the others carry their cluster's (fit.json: pixel_lobes)",
+            s.pixel_lobes,
+            s.covered_pixels
+        );
+    }
     if let Some(g) = &s.turned_grain {
         say!(
             "anisotropy turned from the markers' axes on {:.0}% of the surface (median {:.0} degrees from +x towards +y; maps/roughness.exr B)",
