@@ -150,13 +150,9 @@ impl<const N: usize> Default for Rows<N> {
 impl<const N: usize> Rows<N> {
     /// The buffers, each `n` long (their values are whatever the last call left).
     pub(crate) fn get(&mut self, n: usize) -> [&mut [f32]; N] {
-        let mut it = self.0.iter_mut();
-        std::array::from_fn(|_| match it.next() {
-            Some(v) => {
-                v.resize(n, 0.0);
-                &mut v[..n]
-            }
-            None => &mut [],
+        self.0.each_mut().map(|v| {
+            v.resize(n, 0.0);
+            &mut v[..n]
         })
     }
 }
