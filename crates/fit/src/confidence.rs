@@ -47,9 +47,9 @@ pub const LOBE_VIEWS: usize = 4;
 /// Frames a pixel needs before its flank alone may give it a lobe of its own: the lobe
 /// has ten free parameters with the diffuse albedo and the normal, and the flank pins
 /// them only with many views. Measured: 38 views per pixel (the 4K `paper` video)
-/// gained (light 1 at 1 mm 104% -> 83% on seed 1, 62% -> 47% on seed 2); 6-9 (`hard-small`, `tiny`) changed nothing
-/// beyond a point or two; seven photos of a simulated patchwork set predicted the
-/// held-out photos worse (FLIP 0.058 -> 0.072).
+/// gained (light 1 at 1 mm 104% -> 83% on seed 1, 62% -> 47% on seed 2); 6-9
+/// (`hard-small`, `tiny`) changed nothing beyond a point or two; seven photos of a
+/// simulated patchwork set predicted the held-out photos worse (FLIP 0.058 -> 0.072).
 pub const FLANK_MIN_VIEWS: usize = 16;
 /// Specular confidence where the peak was seen unclipped.
 pub const SPECULAR_PEAK: f32 = 1.0;

@@ -21,7 +21,7 @@ pub struct SampleBatch {
     censor: [Vec<f32>; 3],
     weight: Vec<f32>,
     shapes: Shapes,
-    rows: Rows<7>,
+    rows: Rows<8>,
 }
 
 type Mat10 = SMatrix<f64, N_PARAMS, N_PARAMS>;
@@ -174,11 +174,12 @@ impl SampleBatch {
                 &sh.rel[2][..n],
                 &sh.rel[3][..n],
             );
-            // The weighted Jacobian rows and residuals in one pass over every sample
-            // (it vectorises as the shape terms do), then their products in lanes.
-            let [j0, j1, j2, j3, j4, j5, res] = self.rows.get(n);
+            // The weighted Jacobian rows, residuals and squared errors in one pass over
+            // every sample (it vectorises as the shape terms do), then their sums in lanes.
+            let [j0, j1, j2, j3, j4, j5, res, sq] = self.rows.get(n);
             for i in 0..n {
                 let r = ic * (rd * d[i] + rs * s[i]) - y[i];
+                sq[i] = wt[i] * r0_sq(r, cen[i]);
                 let live = 1.0 - cen[i] * f32::from(u8::from(r > 0.0));
                 let sw = wt[i].sqrt() * live;
                 res[i] = r * sw;
@@ -190,13 +191,9 @@ impl SampleBatch {
                 j4[i] = ic * rd * dd0[i] * sw + ss * r2[i];
                 j5[i] = ic * rd * dd1[i] * sw + ss * r3[i];
             }
-            for ((d, s), (y, (cen, wt))) in lanes(d)
-                .zip(lanes(s))
-                .zip(lanes(y).zip(lanes(cen).zip(lanes(wt))))
-            {
+            for sq in lanes(sq) {
                 for l in 0..LANES {
-                    let r = ic * (rd * d[l] + rs * s[l]) - y[l];
-                    acc_cost[l] += f64::from(wt[l] * r0_sq(r, cen[l]));
+                    acc_cost[l] += f64::from(sq[l]);
                 }
             }
             let [j0, j1, j2, j3, j4, j5, res] = [j0, j1, j2, j3, j4, j5, res].map(|v| &*v);
