@@ -196,6 +196,35 @@ pub fn lobe_seen_share(obs: &Observations, pixels: &[u32], params: &BrdfParams, 
     seen as f64 / n.max(1) as f64
 }
 
+/// Normal confidence of one pixel: the smaller standard deviation of the plane
+/// components of the unit vectors towards the light, over its observations, against
+/// [`NORMAL_FULL_SPREAD`]; 0 below [`MIN_VIEWS`] frames.
+pub(crate) fn normal_confidence(obs: &Observations, p: usize) -> f32 {
+    let range = obs.range(p);
+    if range.len() < MIN_VIEWS {
+        return 0.0;
+    }
+    let m = range.len() as f64;
+    let (mut sx, mut sy, mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    for o in range {
+        let l = obs.light_view(p, o).light;
+        sx += l.x;
+        sy += l.y;
+        sxx += l.x * l.x;
+        syy += l.y * l.y;
+        sxy += l.x * l.y;
+    }
+    let (cxx, cyy, cxy) = (
+        sxx / m - (sx / m).powi(2),
+        syy / m - (sy / m).powi(2),
+        sxy / m - (sx / m) * (sy / m),
+    );
+    // Smaller eigenvalue of the 2x2 covariance.
+    let half_trace = 0.5 * (cxx + cyy);
+    let lambda_min = half_trace - (0.25 * (cxx - cyy).powi(2) + cxy * cxy).sqrt();
+    (lambda_min.max(0.0).sqrt() / NORMAL_FULL_SPREAD).min(1.0) as f32
+}
+
 /// Confidences of one pixel.
 fn pixel_confidence(obs: &Observations, p: usize, params: &BrdfParams) -> [f32; 3] {
     let range = obs.range(p);
@@ -209,15 +238,8 @@ fn pixel_confidence(obs: &Observations, p: usize, params: &BrdfParams) -> [f32; 
     }
     let lobe = Lobe::new(params);
     let (mut peak, mut peak_clipped, mut flank) = (0usize, 0usize, 0usize);
-    let (mut sx, mut sy, mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
     for o in range {
         let lv = obs.light_view(p, o);
-        let (x, y) = (lv.light.x, lv.light.y);
-        sx += x;
-        sy += y;
-        sxx += x * x;
-        syy += y * y;
-        sxy += x * y;
         let Some(e) = lobe.exponent(&lv) else {
             continue;
         };
@@ -239,17 +261,7 @@ fn pixel_confidence(obs: &Observations, p: usize, params: &BrdfParams) -> [f32; 
     } else {
         0.0
     };
-    let m = n as f64;
-    let (cxx, cyy, cxy) = (
-        sxx / m - (sx / m).powi(2),
-        syy / m - (sy / m).powi(2),
-        sxy / m - (sx / m) * (sy / m),
-    );
-    // Smaller eigenvalue of the 2x2 covariance.
-    let half_trace = 0.5 * (cxx + cyy);
-    let lambda_min = half_trace - (0.25 * (cxx - cyy).powi(2) + cxy * cxy).sqrt();
-    let normal = (lambda_min.max(0.0).sqrt() / NORMAL_FULL_SPREAD).min(1.0) as f32;
-    [diffuse, specular, normal]
+    [diffuse, specular, normal_confidence(obs, p)]
 }
 
 #[cfg(test)]

@@ -22,13 +22,15 @@ thread_local! {
 /// maps are constant within a cluster). Each pixel is fitted to its own raw
 /// observations, pulled towards its cluster's solution by a prior as strong as
 /// `refine_prior` average observations of each parameter.
-/// The normal's trust region is centred on `anchor(pixel)` (the cluster's normal
-/// angles), so that a second pass cannot walk further from the cluster than the first.
+/// The normal's trust region is centred on `anchor(pixel).0` (the cluster's normal
+/// angles), so that a second pass cannot walk further from the cluster than the first;
+/// its half-width is `refine_max_normal_change_deg` times `anchor(pixel).1` (in [0, 1]:
+/// how well the pixel's light directions measure its normal).
 pub(crate) fn refine(
     ctx: &Context,
     params: &mut [BrdfParams],
     covered: &[bool],
-    anchor: impl Fn(usize) -> [f64; 2] + Sync,
+    anchor: impl Fn(usize) -> ([f64; 2], f64) + Sync,
     iterations: usize,
     freedom: Freedom,
 ) {
@@ -59,11 +61,12 @@ pub(crate) fn refine(
             if !covered[px] {
                 return;
             }
-            let a = anchor(px);
+            let (a, trust) = anchor(px);
+            let reach = delta * trust;
             let mut bounds = global;
             for k in 0..2 {
-                bounds.normal_lo[k] = (a[k] - delta).max(global.normal_lo[k]);
-                bounds.normal_hi[k] = (a[k] + delta).min(global.normal_hi[k]);
+                bounds.normal_lo[k] = (a[k] - reach).max(global.normal_lo[k]);
+                bounds.normal_hi[k] = (a[k] + reach).min(global.normal_hi[k]);
             }
             let q = if ward_fast {
                 BATCH.with_borrow_mut(|b| {
@@ -180,6 +183,81 @@ mod tests {
             assert_eq!(got.params.tangent_rotation, start.tangent_rotation);
             // It moved towards the truth.
             assert!((got.params.alpha_x - truth.alpha_x).abs() < 0.05, "{got:?}");
+        }
+    }
+
+    /// A pixel lit from one direction cannot tell a tilted normal from a darker albedo:
+    /// its normal stays at its cluster's. One lit from all sides reads its tilt.
+    #[test]
+    fn the_normal_moves_only_as_far_as_its_light_directions_measure_it() {
+        let truth = BrdfParams {
+            rho_d: [0.3, 0.25, 0.2],
+            rho_s: [0.05; 3],
+            alpha_x: 0.3,
+            alpha_y: 0.3,
+            normal_theta_x: 0.03,
+            normal_theta_y: -0.02,
+            tangent_rotation: 0.0,
+        };
+        let grid = PlaneGrid::new(Region::centred(0.2, 0.2), 10.0).unwrap();
+        let sweep = |spread: f64| -> Vec<FrameGeometry> {
+            (0..40)
+                .map(|i| {
+                    let a = f64::from(i) * 0.7;
+                    let camera = Vec3::new(
+                        6.0 + spread * a.cos(),
+                        spread * a.sin(),
+                        10.0 + 0.5 * f64::from(i % 3),
+                    );
+                    FrameGeometry {
+                        id: i,
+                        camera,
+                        light: camera + Vec3::new(0.8, 0.0, 0.0),
+                        gain: 1.0,
+                    }
+                })
+                .collect()
+        };
+        let cfg = crate::FitConfig::default();
+        let delta = cfg.refine_max_normal_change_deg.to_radians();
+        for (spread, wide) in [(0.02, false), (8.0, true)] {
+            let obs = rendered(grid, sweep(spread), |_| truth, 150.0, false);
+            let covered = vec![true; obs.pixels()];
+            let trust = crate::stages::normal_trust(&obs, &covered, &cfg);
+            let ctx = Context {
+                obs: &obs,
+                model: &Ward,
+                intensity: [150.0; 3],
+                cfg: &cfg,
+            };
+            let flat = BrdfParams {
+                normal_theta_x: 0.0,
+                normal_theta_y: 0.0,
+                ..truth
+            };
+            let mut params = vec![flat; obs.pixels()];
+            let anchor = |p: usize| ([0.0, 0.0], trust[p]);
+            refine(
+                &ctx,
+                &mut params,
+                &covered,
+                anchor,
+                10,
+                Freedom::DIFFUSE_AND_NORMAL,
+            );
+            for (p, q) in params.iter().enumerate() {
+                let (tx, ty) = (q.normal_theta_x, q.normal_theta_y);
+                if wide {
+                    assert_eq!(trust[p], 1.0, "pixel {p}");
+                    assert!(
+                        (tx - 0.03).abs() < 0.01 && (ty + 0.02).abs() < 0.01,
+                        "{q:?}"
+                    );
+                } else {
+                    assert!(trust[p] < 0.1, "pixel {p}: {}", trust[p]);
+                    assert!(tx.abs().max(ty.abs()) <= trust[p] * delta + 1e-12, "{q:?}");
+                }
+            }
         }
     }
 }

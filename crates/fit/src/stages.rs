@@ -328,9 +328,12 @@ pub(crate) fn refine_stage(
     let mut lobes: Vec<Option<BrdfParams>> = vec![None; leaves.len()];
     if cfg.refine {
         progress.stage("per-pixel refinement", 1);
+        // Where the light came from too narrow a range of directions to measure the
+        // normal, the refinement may move it less (none at all lit from one direction).
+        let trust = normal_trust(obs, covered, cfg);
         let anchor = |px: usize| {
             let l = &leaves[cluster[px] as usize].params;
-            [l.normal_theta_x, l.normal_theta_y]
+            ([l.normal_theta_x, l.normal_theta_y], trust[px])
         };
         refits = if model.kind() == ModelKind::Ward && !cfg.diffuse_only {
             cfg.lobe_refits
@@ -427,6 +430,26 @@ pub(crate) fn refine_stage(
         pixel_lobes,
         timings,
     }
+}
+
+/// Per pixel, the share of `refine_max_normal_change_deg` the refinement may move its
+/// normal: its normal confidence over `normal_trust_full_confidence`, times the square
+/// root of its frames over `normal_trust_full_views`, at most 1.
+pub(crate) fn normal_trust(obs: &Observations, covered: &[bool], cfg: &FitConfig) -> Vec<f64> {
+    let full = cfg.normal_trust_full_confidence;
+    (0..covered.len())
+        .into_par_iter()
+        .map(|p| {
+            if full <= 0.0 || !covered[p] {
+                return 1.0;
+            }
+            let views = match cfg.normal_trust_full_views {
+                0 => 1.0,
+                v => (obs.count(p) as f64 / v as f64).sqrt(),
+            };
+            (f64::from(confidence::normal_confidence(obs, p)) / full * views).min(1.0)
+        })
+        .collect()
 }
 
 /// Re-rendering check, confidence, warnings and the records.
