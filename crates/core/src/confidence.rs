@@ -78,7 +78,7 @@ impl ConfidenceSummary {
         s += ".";
         if self.normal_low > 0.005 {
             s += &format!(
-                " On {} the light came from too narrow a range of directions to measure the normal well.",
+                " On {} the light came from too narrow a range of directions to measure the normal well, so their normals stay near their cluster's.",
                 pct(self.normal_low)
             );
         }

@@ -25,7 +25,7 @@ thread_local! {
 /// The normal's trust region is centred on `anchor(pixel).0` (the cluster's normal
 /// angles), so that a second pass cannot walk further from the cluster than the first;
 /// its half-width is `refine_max_normal_change_deg` times `anchor(pixel).1` (in [0, 1]:
-/// how well the pixel's light directions measure its normal).
+/// how well the pixel's light directions and frames measure its normal).
 pub(crate) fn refine(
     ctx: &Context,
     params: &mut [BrdfParams],
