@@ -78,7 +78,7 @@ impl ConfidenceSummary {
         s += ".";
         if self.normal_low > 0.005 {
             s += &format!(
-                " On {} the light came from too narrow a range of directions to measure the normal well, so their normals stay near their cluster's.",
+                " On {} the light came from too narrow a range of directions to measure the normal well.",
                 pct(self.normal_low)
             );
         }

@@ -182,23 +182,23 @@ pub struct FitConfig {
     /// region that keeps a pixel's normal near its cluster's. Without it a few pixels
     /// with a sharp specular lobe tilt to the bound and light up under oblique light.
     pub refine_max_normal_change_deg: f64,
-    /// How far each pixel's normal may move, as a share of
-    /// `refine_max_normal_change_deg`: its normal confidence (`confidence`: the spread of
-    /// the directions the light came from, in [0, 1]) over this value, times
-    /// `sqrt(frames / normal_trust_full_views)`, at most 1. A normal is read from how the
-    /// shading changes with the light's direction, so its noise grows as that spread
-    /// narrows and falls with the square root of the views: a pixel lit from a narrow
-    /// range of directions by a few frames reads noise, not the surface, into its
-    /// normal, and one lit from a single direction keeps its cluster's (0: every pixel
-    /// gets the whole change). Measured on 10 `hard-small` captures (4-10 frames per
-    /// pixel: brushed metal Ward and GGX, leather, tiles, patchwork, bathroom tiles;
-    /// session 46, true registration) against no limit: normal error lower on 9 (tiles
-    /// 2.22 -> 1.81 degrees, bathroom tiles 2.77 -> 2.31, leather 1.56 -> 1.41), diffuse
-    /// within 2% on 9; the tenth chose other settings by its held-out frames (see
-    /// docs/BENCHMARKS.md); `paper` (38 frames per pixel) unchanged (1.991 -> 1.994
-    /// degrees).
+    /// Opt-in (0, the default: off): how far each pixel's normal may move, as a share
+    /// of `refine_max_normal_change_deg`, is its normal confidence (`confidence`: the
+    /// spread of the directions the light came from, in [0, 1]) over this value, times
+    /// `sqrt(frames / normal_trust_full_views)`, at most 1; a pixel lit from a single
+    /// direction keeps its cluster's normal. A normal is read from how the shading
+    /// changes with the light's direction, so its noise grows as that spread narrows and
+    /// falls with the square root of the views. Measured with 1 (session 46, true
+    /// registration, docs/BENCHMARKS.md): on 10 `hard-small` captures (4-10 frames per
+    /// pixel) the normal error fell on 9 (brushed metal 1.03 -> 0.70 degrees, tiles 2.22
+    /// -> 1.81, bathroom tiles 2.77 -> 2.31); `paper` unchanged (1.991 -> 1.994); but on
+    /// the 4K `hard` leather (11-25 frames per pixel) it rose 2.08 -> 2.30 degrees, with
+    /// diffuse 0.0132 -> 0.0137: there the normals it holds back were measured. So it is
+    /// off unless asked for: worth trying on flat, dark or metallic surfaces filmed
+    /// briefly.
     pub normal_trust_full_confidence: f64,
-    /// Frames at which that share is full (0: the number of frames does not count).
+    /// Frames at which that share is full, with `normal_trust_full_confidence` set (0:
+    /// the number of frames does not count).
     pub normal_trust_full_views: usize,
     /// After the lobe refits, give each pixel whose observations measure its lobe its
     /// own lobe (`confidence::lobe_measured`: at least two unclipped observations
@@ -297,7 +297,7 @@ impl Default for FitConfig {
             refine_robust: 1.0,
             refine_specular: true,
             refine_max_normal_change_deg: 3.0,
-            normal_trust_full_confidence: 1.0,
+            normal_trust_full_confidence: 0.0,
             normal_trust_full_views: 16,
             strip_frames: 4,
             diffuse_only: false,

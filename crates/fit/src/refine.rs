@@ -218,7 +218,10 @@ mod tests {
                 })
                 .collect()
         };
-        let cfg = crate::FitConfig::default();
+        let cfg = crate::FitConfig {
+            normal_trust_full_confidence: 1.0,
+            ..Default::default()
+        };
         let delta = cfg.refine_max_normal_change_deg.to_radians();
         for (spread, wide) in [(0.02, false), (8.0, true)] {
             let obs = rendered(grid, sweep(spread), |_| truth, 150.0, false);
