@@ -204,25 +204,48 @@ pub(crate) fn normal_confidence(obs: &Observations, p: usize) -> f32 {
     if range.len() < MIN_VIEWS {
         return 0.0;
     }
-    let m = range.len() as f64;
-    let (mut sx, mut sy, mut sxx, mut syy, mut sxy) = (0.0, 0.0, 0.0, 0.0, 0.0);
+    let mut spread = LightSpread::default();
     for o in range {
-        let l = obs.light_view(p, o).light;
-        sx += l.x;
-        sy += l.y;
-        sxx += l.x * l.x;
-        syy += l.y * l.y;
-        sxy += l.x * l.y;
+        spread.add(&obs.light_view(p, o));
     }
-    let (cxx, cyy, cxy) = (
-        sxx / m - (sx / m).powi(2),
-        syy / m - (sy / m).powi(2),
-        sxy / m - (sx / m) * (sy / m),
-    );
-    // Smaller eigenvalue of the 2x2 covariance.
-    let half_trace = 0.5 * (cxx + cyy);
-    let lambda_min = half_trace - (0.25 * (cxx - cyy).powi(2) + cxy * cxy).sqrt();
-    (lambda_min.max(0.0).sqrt() / NORMAL_FULL_SPREAD).min(1.0) as f32
+    spread.confidence()
+}
+
+/// Running sums of the light direction's plane components, for the normal confidence.
+#[derive(Default)]
+struct LightSpread {
+    n: usize,
+    sx: f64,
+    sy: f64,
+    sxx: f64,
+    syy: f64,
+    sxy: f64,
+}
+
+impl LightSpread {
+    fn add(&mut self, lv: &svbrdf_core::brdf::LightView) {
+        let (x, y) = (lv.light.x, lv.light.y);
+        self.n += 1;
+        self.sx += x;
+        self.sy += y;
+        self.sxx += x * x;
+        self.syy += y * y;
+        self.sxy += x * y;
+    }
+
+    /// The smaller standard deviation over [`NORMAL_FULL_SPREAD`], at most 1.
+    fn confidence(&self) -> f32 {
+        let m = self.n.max(1) as f64;
+        let (cxx, cyy, cxy) = (
+            self.sxx / m - (self.sx / m).powi(2),
+            self.syy / m - (self.sy / m).powi(2),
+            self.sxy / m - (self.sx / m) * (self.sy / m),
+        );
+        // Smaller eigenvalue of the 2x2 covariance.
+        let half_trace = 0.5 * (cxx + cyy);
+        let lambda_min = half_trace - (0.25 * (cxx - cyy).powi(2) + cxy * cxy).sqrt();
+        (lambda_min.max(0.0).sqrt() / NORMAL_FULL_SPREAD).min(1.0) as f32
+    }
 }
 
 /// Confidences of one pixel.
@@ -238,8 +261,10 @@ fn pixel_confidence(obs: &Observations, p: usize, params: &BrdfParams) -> [f32; 
     }
     let lobe = Lobe::new(params);
     let (mut peak, mut peak_clipped, mut flank) = (0usize, 0usize, 0usize);
+    let mut spread = LightSpread::default();
     for o in range {
         let lv = obs.light_view(p, o);
+        spread.add(&lv);
         let Some(e) = lobe.exponent(&lv) else {
             continue;
         };
@@ -261,7 +286,7 @@ fn pixel_confidence(obs: &Observations, p: usize, params: &BrdfParams) -> [f32; 
     } else {
         0.0
     };
-    [diffuse, specular, normal_confidence(obs, p)]
+    [diffuse, specular, spread.confidence()]
 }
 
 #[cfg(test)]

@@ -226,7 +226,7 @@ mod tests {
         for (spread, wide) in [(0.02, false), (8.0, true)] {
             let obs = rendered(grid, sweep(spread), |_| truth, 150.0, false);
             let covered = vec![true; obs.pixels()];
-            let trust = crate::stages::normal_trust(&obs, &covered, &cfg);
+            let trust = crate::stages::normal_trust(&obs, &covered, &cfg).expect("limit on");
             let ctx = Context {
                 obs: &obs,
                 model: &Ward,

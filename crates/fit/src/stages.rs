@@ -333,7 +333,8 @@ pub(crate) fn refine_stage(
         let trust = normal_trust(obs, covered, cfg);
         let anchor = |px: usize| {
             let l = &leaves[cluster[px] as usize].params;
-            ([l.normal_theta_x, l.normal_theta_y], trust[px])
+            let t = trust.as_ref().map_or(1.0, |t| t[px]);
+            ([l.normal_theta_x, l.normal_theta_y], t)
         };
         refits = if model.kind() == ModelKind::Ward && !cfg.diffuse_only {
             cfg.lobe_refits
@@ -434,13 +435,21 @@ pub(crate) fn refine_stage(
 
 /// Per pixel, the share of `refine_max_normal_change_deg` the refinement may move its
 /// normal: its normal confidence over `normal_trust_full_confidence`, times the square
-/// root of its frames over `normal_trust_full_views`, at most 1.
-pub(crate) fn normal_trust(obs: &Observations, covered: &[bool], cfg: &FitConfig) -> Vec<f64> {
+/// root of its frames over `normal_trust_full_views`, at most 1; `None` (the whole
+/// change everywhere) when the setting is off.
+pub(crate) fn normal_trust(
+    obs: &Observations,
+    covered: &[bool],
+    cfg: &FitConfig,
+) -> Option<Vec<f64>> {
     let full = cfg.normal_trust_full_confidence;
-    (0..covered.len())
+    if full <= 0.0 {
+        return None;
+    }
+    let trust = (0..covered.len())
         .into_par_iter()
         .map(|p| {
-            if full <= 0.0 || !covered[p] {
+            if !covered[p] {
                 return 1.0;
             }
             let views = match cfg.normal_trust_full_views {
@@ -449,7 +458,8 @@ pub(crate) fn normal_trust(obs: &Observations, covered: &[bool], cfg: &FitConfig
             };
             (f64::from(confidence::normal_confidence(obs, p)) / full * views).min(1.0)
         })
-        .collect()
+        .collect();
+    Some(trust)
 }
 
 /// Re-rendering check, confidence, warnings and the records.
