@@ -181,6 +181,12 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
             s.covered_pixels
         );
     }
+    if s.neighbour_lobes > 0 {
+        say!(
+            "of those, {} in anisotropic clusters took their lobe from their neighbours' (fit.json: neighbour_lobes)",
+            s.neighbour_lobes
+        );
+    }
     if let Some(g) = &s.turned_grain {
         say!(
             "anisotropy turned from the markers' axes on {:.0}% of the surface (median {:.0} degrees from +x towards +y; maps/roughness.exr B)",

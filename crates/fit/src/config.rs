@@ -214,6 +214,14 @@ pub struct FitConfig {
     /// the pixels with their own lobe (seen by 6-9 frames, `hard-small` pixels keep the
     /// peak rule alone).
     pub refine_specular: bool,
+    /// With `refine_specular`: where a pixel's cluster lobe is at least this anisotropic
+    /// (larger width over smaller) and the pixel's highlight was measured by at least
+    /// 16 frames, its lobe comes from its neighbours instead (`neighbour` module: fitted
+    /// almost freely, then each lobe parameter the median over its cluster's such
+    /// pixels within `neighbour_lobes_radius_px`, then refitted as usual). 0: off.
+    pub neighbour_lobes_min_anisotropy: f64,
+    /// Half-width (output pixels) of the square window of that median.
+    pub neighbour_lobes_radius_px: usize,
     /// Robust per-pixel refinement: Cauchy weights with this scale, in units of the
     /// pixel's robust residual spread at its cluster's solution (0: plain least squares).
     pub refine_robust: f64,
@@ -296,6 +304,8 @@ impl Default for FitConfig {
             refine_moved_only: true,
             refine_robust: 1.0,
             refine_specular: true,
+            neighbour_lobes_min_anisotropy: 0.0,
+            neighbour_lobes_radius_px: 2,
             refine_max_normal_change_deg: 3.0,
             normal_trust_full_confidence: 0.0,
             normal_trust_full_views: 16,
@@ -426,6 +436,21 @@ impl FitConfig {
                 "normal trust's full views",
                 &self.normal_trust_full_views,
                 "frames in 0-10000",
+            );
+        }
+        let a = self.neighbour_lobes_min_anisotropy;
+        if !(a == 0.0 || (1.0..=100.0).contains(&a)) {
+            return bad(
+                "neighbour lobes' minimum anisotropy",
+                &a,
+                "0 (off) or a width ratio in 1-100",
+            );
+        }
+        if !(1..=16).contains(&self.neighbour_lobes_radius_px) {
+            return bad(
+                "neighbour lobes' radius",
+                &self.neighbour_lobes_radius_px,
+                "1-16 output pixels",
             );
         }
         if !(self.refine_robust >= 0.0 && self.refine_robust.is_finite()) {

@@ -23,6 +23,7 @@ pub mod evaluate;
 pub mod fast;
 pub mod holdout;
 mod intensity;
+mod neighbour;
 pub mod observations;
 pub mod output;
 mod reassign;

@@ -287,6 +287,7 @@ fn validate(
             (c.k_min, c.k_max) = (k, k);
             c.refine_prior *= share;
             c.min_cluster_px = c.min_cluster_px.div_ceil(step * step).max(2);
+            c.neighbour_lobes_radius_px = (c.neighbour_lobes_radius_px / step).max(1);
             let reused = shared.as_ref().and_then(|(dc, tree, before_specular)| {
                 if !same_tree(&c, dc) {
                     return None;

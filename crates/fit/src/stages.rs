@@ -15,8 +15,8 @@ use crate::room::RoomLight;
 use crate::solver::Freedom;
 use crate::tree::Context;
 use crate::{
-    cluster, confidence, light_intensity, refine, render, summary, tree, ClusterInfo, FitConfig,
-    FitError, FitSummary, FittedMaps, IntensitySource, Observations, RoomLightMode,
+    cluster, confidence, light_intensity, neighbour, refine, render, summary, tree, ClusterInfo,
+    FitConfig, FitError, FitSummary, FittedMaps, IntensitySource, Observations, RoomLightMode,
     CLIPPED_PEAK_WARNING, ENERGY_MARGIN, NEAR_MIRROR_DEG, SPECULAR_UNSEEN_WARNING,
 };
 
@@ -52,6 +52,7 @@ pub(crate) struct Refined {
     lobes: Vec<Option<BrdfParams>>,
     refits: usize,
     pixel_lobes: usize,
+    neighbour_lobes: usize,
     timings: Vec<(String, f64)>,
 }
 
@@ -325,6 +326,7 @@ pub(crate) fn refine_stage(
     let t = Instant::now();
     let mut refits = 0;
     let mut pixel_lobes = 0;
+    let mut neighbour_lobes = 0;
     let mut lobes: Vec<Option<BrdfParams>> = vec![None; leaves.len()];
     if cfg.refine {
         progress.stage("per-pixel refinement", 1);
@@ -405,11 +407,34 @@ pub(crate) fn refine_stage(
             // roughness too, pulled towards its cluster's.
             let t = Instant::now();
             progress.stage("per-pixel specular", 1);
-            let measured: Vec<bool> = (0..npx)
+            let mut measured: Vec<bool> = (0..npx)
                 .into_par_iter()
                 .map(|p| covered[p] && confidence::lobe_measured(obs, p, &params[p]))
                 .collect();
             pixel_lobes = measured.iter().filter(|&&b| b).count();
+            // In anisotropic clusters, pixels seen often enough take their lobe from
+            // their neighbours instead.
+            let min_aniso = cfg.neighbour_lobes_min_anisotropy;
+            let from_neighbours: Vec<bool> = if min_aniso > 0.0 {
+                let anisotropic: Vec<bool> = (0..leaves.len())
+                    .map(|c| {
+                        neighbour::anisotropy(&lobes[c].unwrap_or(leaves[c].params)) >= min_aniso
+                    })
+                    .collect();
+                (0..npx)
+                    .into_par_iter()
+                    .map(|p| {
+                        measured[p]
+                            && anisotropic[cluster[p] as usize]
+                            && obs.count(p) >= confidence::FLANK_MIN_VIEWS
+                    })
+                    .collect()
+            } else {
+                Vec::new()
+            };
+            for (m, &n) in measured.iter_mut().zip(&from_neighbours) {
+                *m &= !n;
+            }
             refine(
                 &ctx,
                 &mut params,
@@ -418,6 +443,15 @@ pub(crate) fn refine_stage(
                 cfg.refine_iterations,
                 Freedom::FULL,
             );
+            if !from_neighbours.is_empty() {
+                neighbour_lobes = neighbour::neighbour_lobes(
+                    &ctx,
+                    &mut params,
+                    &from_neighbours,
+                    cluster,
+                    anchor,
+                );
+            }
             progress.finish();
             timings.push(("per-pixel specular".to_string(), t.elapsed().as_secs_f64()));
         }
@@ -429,6 +463,7 @@ pub(crate) fn refine_stage(
         lobes,
         refits,
         pixel_lobes,
+        neighbour_lobes,
         timings,
     }
 }
@@ -494,6 +529,7 @@ pub(crate) fn finish(
         lobes,
         refits,
         pixel_lobes,
+        neighbour_lobes,
         timings: refine_timings,
         ..
     } = refined;
@@ -573,6 +609,7 @@ pub(crate) fn finish(
         lobe_refits: refits,
         refitted_clusters: lobes.iter().filter(|l| l.is_some()).count(),
         pixel_lobes,
+        neighbour_lobes,
         rmse_clusters,
         rmse_final,
         frames,

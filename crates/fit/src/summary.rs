@@ -136,6 +136,10 @@ pub struct FitSummary {
     /// cluster's.
     #[serde(default)]
     pub pixel_lobes: usize,
+    /// Of those, pixels whose lobe came from their neighbours
+    /// (`neighbour_lobes_min_anisotropy`).
+    #[serde(default)]
+    pub neighbour_lobes: usize,
     /// RMS error of the cluster solutions (before refinement, linear), over the
     /// observations the split decisions use: at most `max_split_observations` per pixel.
     pub rmse_clusters: f64,
