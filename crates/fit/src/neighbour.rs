@@ -232,6 +232,7 @@ mod tests {
             k_min: 1,
             k_max: 1,
             max_depth: 2,
+            neighbour_lobes_min_anisotropy: 0.0,
             ..FitConfig::default()
         };
         let on = FitConfig {
