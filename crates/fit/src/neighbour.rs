@@ -17,9 +17,11 @@
 use rayon::prelude::*;
 use svbrdf_core::brdf::BrdfParams;
 
+use crate::confidence::FLANK_MIN_VIEWS;
 use crate::refine::refine;
 use crate::solver::Freedom;
 use crate::tree::Context;
+use crate::{FitConfig, Observations};
 
 /// The loose fit's prior as a share of `refine_prior` (0.5 -> 0.01 at the defaults).
 pub(crate) const LOOSE_PRIOR_SHARE: f64 = 0.02;
@@ -30,6 +32,28 @@ pub(crate) const LOOSE_ITERATIONS: usize = 20;
 pub(crate) fn anisotropy(lobe: &BrdfParams) -> f64 {
     let (a, b) = (lobe.alpha_x.max(1e-9), lobe.alpha_y.max(1e-9));
     (a / b).max(b / a)
+}
+
+/// The pixels whose lobe comes from their neighbours (empty when the setting is off):
+/// of those whose observations measure their lobe (`measured`), the ones seen by at
+/// least [`FLANK_MIN_VIEWS`] frames in a cluster whose lobe (`cluster_lobes`, by
+/// cluster label) is at least `neighbour_lobes_min_anisotropy` anisotropic.
+pub(crate) fn chosen(
+    obs: &Observations,
+    measured: &[bool],
+    cluster: &[u32],
+    cluster_lobes: &[BrdfParams],
+    cfg: &FitConfig,
+) -> Vec<bool> {
+    let min = cfg.neighbour_lobes_min_anisotropy;
+    if min <= 0.0 {
+        return Vec::new();
+    }
+    let anisotropic: Vec<bool> = cluster_lobes.iter().map(|l| anisotropy(l) >= min).collect();
+    (0..measured.len())
+        .into_par_iter()
+        .map(|p| measured[p] && anisotropic[cluster[p] as usize] && obs.count(p) >= FLANK_MIN_VIEWS)
+        .collect()
 }
 
 /// A lobe's parameters as one array: specular albedo (RGB), then the two widths.

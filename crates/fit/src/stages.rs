@@ -414,24 +414,10 @@ pub(crate) fn refine_stage(
             pixel_lobes = measured.iter().filter(|&&b| b).count();
             // In anisotropic clusters, pixels seen often enough take their lobe from
             // their neighbours instead.
-            let min_aniso = cfg.neighbour_lobes_min_anisotropy;
-            let from_neighbours: Vec<bool> = if min_aniso > 0.0 {
-                let anisotropic: Vec<bool> = (0..leaves.len())
-                    .map(|c| {
-                        neighbour::anisotropy(&lobes[c].unwrap_or(leaves[c].params)) >= min_aniso
-                    })
-                    .collect();
-                (0..npx)
-                    .into_par_iter()
-                    .map(|p| {
-                        measured[p]
-                            && anisotropic[cluster[p] as usize]
-                            && obs.count(p) >= confidence::FLANK_MIN_VIEWS
-                    })
-                    .collect()
-            } else {
-                Vec::new()
-            };
+            let cluster_lobes: Vec<BrdfParams> = (0..leaves.len())
+                .map(|c| lobes[c].unwrap_or(leaves[c].params))
+                .collect();
+            let from_neighbours = neighbour::chosen(obs, &measured, cluster, &cluster_lobes, cfg);
             for (m, &n) in measured.iter_mut().zip(&from_neighbours) {
                 *m &= !n;
             }
