@@ -18,7 +18,7 @@ use rayon::prelude::*;
 use svbrdf_core::brdf::BrdfParams;
 
 use crate::confidence::FLANK_MIN_VIEWS;
-use crate::refine::refine;
+use crate::refine::{put_lobe, refine};
 use crate::solver::Freedom;
 use crate::tree::Context;
 use crate::{FitConfig, Observations};
@@ -75,9 +75,10 @@ fn neighbour_medians(
     let height = params.len() / width.max(1);
     pixels
         .par_iter()
-        .map(|&p| {
+        // One scratch per worker, not five allocations per pixel.
+        .map_init(<[Vec<f64>; 5]>::default, |values, &p| {
             let (x, y) = (p % width, p / width);
-            let mut values: [Vec<f64>; 5] = Default::default();
+            values.iter_mut().for_each(Vec::clear);
             for ny in y.saturating_sub(radius)..(y + radius + 1).min(height) {
                 for nx in x.saturating_sub(radius)..(x + radius + 1).min(width) {
                     let q = ny * width + nx;
@@ -150,10 +151,7 @@ where
     );
     for ((&p, s), m) in pixels.iter().zip(&saved).zip(&medians) {
         let mut q = *s;
-        for k in 0..3 {
-            q.rho_s[k] = m[k].min(1.0 - q.rho_d[k]).max(0.0);
-        }
-        (q.alpha_x, q.alpha_y) = (m[3], m[4]);
+        put_lobe(&mut q, [m[0], m[1], m[2]], m[3], m[4]);
         params[p] = q;
     }
     refine(

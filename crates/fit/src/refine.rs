@@ -96,6 +96,15 @@ pub(crate) fn refine(
         });
 }
 
+/// Give a pixel the lobe `rho_s`, `alpha_x`, `alpha_y`, its specular albedo cut to
+/// what its diffuse albedo leaves (energy conservation).
+pub(crate) fn put_lobe(p: &mut BrdfParams, rho_s: [f64; 3], alpha_x: f64, alpha_y: f64) {
+    for k in 0..3 {
+        p.rho_s[k] = rho_s[k].min(1.0 - p.rho_d[k]).max(0.0);
+    }
+    (p.alpha_x, p.alpha_y) = (alpha_x, alpha_y);
+}
+
 /// Pixel `px`'s raw observations as solver samples, each of weight 1.
 fn pixel_samples(obs: &crate::observations::Observations, px: usize) -> Vec<Sample> {
     obs.range(px)

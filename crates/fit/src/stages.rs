@@ -388,11 +388,7 @@ pub(crate) fn refine_stage(
             }
             for (p, &c) in params.iter_mut().zip(cluster) {
                 if let Some(q) = lobes[c as usize] {
-                    for k in 0..3 {
-                        p.rho_s[k] = q.rho_s[k].min(1.0 - p.rho_d[k]).max(0.0);
-                    }
-                    p.alpha_x = q.alpha_x;
-                    p.alpha_y = q.alpha_y;
+                    refine::put_lobe(p, q.rho_s, q.alpha_x, q.alpha_y);
                 }
             }
             progress.finish();
