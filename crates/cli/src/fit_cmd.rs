@@ -152,7 +152,13 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
                 sel.folds,
                 sel.candidates
                     .iter()
-                    .map(|c| format!("{} {:.4}", c.name, c.held_out_srgb_rmse))
+                    .map(|c| match c.dropped_after {
+                        Some(n) => format!(
+                            "{} {:.4} (left out after fold {n})",
+                            c.name, c.held_out_srgb_rmse
+                        ),
+                        None => format!("{} {:.4}", c.name, c.held_out_srgb_rmse),
+                    })
                     .collect::<Vec<_>>()
                     .join(", ")
             );

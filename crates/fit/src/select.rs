@@ -16,7 +16,10 @@
 //! validation fits use every `decimation`-th output pixel in each direction (so that
 //! at most `select_pixels` remain) and the number of initial clusters chosen once on
 //! every frame; the refinement's prior is scaled by the share of frames a fold keeps,
-//! so that it weighs against the data as it will in the final fit.
+//! so that it weighs against the data as it will in the final fit. A candidate whose
+//! held-out error after a fold is more than `select_drop_ratio` times the defaults' is
+//! not fitted on the remaining folds (it could not come back to win by the margin) and
+//! cannot be chosen; its record says after how many folds.
 
 use std::time::Instant;
 
@@ -114,8 +117,17 @@ pub struct CandidateScore {
     pub held_out_rmse: f64,
     /// The same of sRGB-encoded values (highlights weigh less).
     pub held_out_srgb_rmse: f64,
-    /// The linear RMS per fold.
+    /// The linear RMS per fold (of the folds it was scored on).
     pub held_out_rmse_per_fold: Vec<f64>,
+    /// The sRGB RMS per fold (of the folds it was scored on).
+    #[serde(default)]
+    pub held_out_srgb_rmse_per_fold: Vec<f64>,
+    /// `Some(n)`: after `n` folds its held-out error was more than
+    /// `select_drop_ratio` times the defaults', so it was not fitted on the rest
+    /// and cannot be chosen (its figures are those `n` folds'); `None`: scored on
+    /// every fold.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub dropped_after: Option<usize>,
     /// RMS re-rendering error on the frames each fold was fitted to (pooled, linear):
     /// the training residual, which always favours detail.
     pub training_rmse: f64,
@@ -255,7 +267,26 @@ fn validate(
     type PerFold = Vec<SquaredErrors>;
     let mut scores: Vec<(PerFold, PerFold)> = vec![(Vec::new(), Vec::new()); CANDIDATES.len()];
     let mut seconds = [0.0; CANDIDATES.len()];
-    for mask in &masks {
+    let mut dropped: [Option<usize>; CANDIDATES.len()] = [None; CANDIDATES.len()];
+    let default = CANDIDATES
+        .iter()
+        .position(|c| c.name == DEFAULT)
+        .unwrap_or(CANDIDATES.len() - 1);
+    for (done, mask) in masks.iter().enumerate() {
+        // A candidate whose held-out error so far is far above the defaults' cannot
+        // come back to beat them by the margin: it is not fitted on the later folds.
+        if done > 0 && cfg.select_drop_ratio > 0.0 {
+            let so_far = |i: usize| pooled(&scores[i].0).srgb_rmse();
+            let reference = so_far(default);
+            for i in 0..CANDIDATES.len() {
+                if i != default
+                    && dropped[i].is_none()
+                    && so_far(i) > cfg.select_drop_ratio * reference
+                {
+                    dropped[i] = Some(done);
+                }
+            }
+        }
         held_out.push(
             obs.frames
                 .iter()
@@ -272,11 +303,8 @@ fn validate(
         // share their cluster tree (`cluster-maps` is that tree without refinement),
         // and `cluster-lobes` is the defaults' fit before its per-pixel specular step,
         // so none fits a tree of its own.
-        let default = CANDIDATES
-            .iter()
-            .position(|c| c.name == DEFAULT)
-            .unwrap_or(CANDIDATES.len() - 1);
-        let order = std::iter::once(default).chain((0..CANDIDATES.len()).filter(|&i| i != default));
+        let order = std::iter::once(default)
+            .chain((0..CANDIDATES.len()).filter(|&i| i != default && dropped[i].is_none()));
         // The defaults' settings, cluster tree and parameters before their per-pixel
         // specular step.
         let mut shared: Option<(FitConfig, TreeStage, Option<Vec<BrdfParams>>)> = None;
@@ -344,7 +372,8 @@ fn validate(
         .iter()
         .zip(&scores)
         .zip(seconds)
-        .map(|((cand, (test, train)), seconds)| {
+        .zip(dropped)
+        .map(|(((cand, (test, train)), seconds), dropped_after)| {
             let (test_all, train_all) = (pooled(test), pooled(train));
             CandidateScore {
                 name: cand.name.to_string(),
@@ -352,9 +381,11 @@ fn validate(
                 held_out_rmse: test_all.linear_rmse(),
                 held_out_srgb_rmse: test_all.srgb_rmse(),
                 held_out_rmse_per_fold: test.iter().map(SquaredErrors::linear_rmse).collect(),
+                held_out_srgb_rmse_per_fold: test.iter().map(SquaredErrors::srgb_rmse).collect(),
                 training_rmse: train_all.linear_rmse(),
                 training_srgb_rmse: train_all.srgb_rmse(),
                 seconds,
+                dropped_after,
             }
         })
         .collect();
@@ -402,7 +433,9 @@ fn specular_off_only(a: &FitConfig, b: &FitConfig) -> bool {
 /// the Lambertian setting lost on every capture measured.
 pub fn choose(candidates: &[CandidateScore]) -> (String, String) {
     let err = |c: &CandidateScore| c.held_out_srgb_rmse;
-    let finite = candidates.iter().filter(|c| err(c).is_finite());
+    let finite = candidates
+        .iter()
+        .filter(|c| err(c).is_finite() && c.dropped_after.is_none());
     let Some(best) = finite.min_by(|a, b| err(a).total_cmp(&err(b))) else {
         return (
             DEFAULT.to_string(),
@@ -489,9 +522,11 @@ mod tests {
             held_out_rmse: rmse,
             held_out_srgb_rmse: rmse,
             held_out_rmse_per_fold: vec![rmse],
+            held_out_srgb_rmse_per_fold: vec![rmse],
             training_rmse: rmse,
             training_srgb_rmse: rmse,
             seconds: 0.0,
+            dropped_after: None,
         }
     }
 
@@ -505,5 +540,9 @@ mod tests {
         assert!(why.contains("10.0% better"), "{why}");
         let c = [score("diffuse-only", f64::NAN), score(DEFAULT, 0.1)];
         assert_eq!(choose(&c).0, DEFAULT);
+        // A candidate left out of the later folds is never chosen on its partial score.
+        let mut partial = score("diffuse-only", 0.05);
+        partial.dropped_after = Some(1);
+        assert_eq!(choose(&[partial, score(DEFAULT, 0.1)]).0, DEFAULT);
     }
 }

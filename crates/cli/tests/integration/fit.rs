@@ -54,6 +54,29 @@ fn fit_writes_complete_self_describing_maps() {
     }
     assert!(err("diffuse-only") > 1.5 * err("default"), "{sel}");
     assert_ne!(sel["chosen"], "diffuse-only", "{sel}");
+    // Far worse after the first fold, the Lambertian setting is not fitted on the
+    // others: one fold's figures, and the record and the printout say so.
+    let lambertian = cands.iter().find(|c| c["name"] == "diffuse-only").unwrap();
+    assert_eq!(lambertian["dropped_after"], 1, "{sel}");
+    assert_eq!(
+        lambertian["held_out_srgb_rmse_per_fold"]
+            .as_array()
+            .unwrap()
+            .len(),
+        1,
+        "{sel}"
+    );
+    let default = cands.iter().find(|c| c["name"] == "default").unwrap();
+    assert!(default.get("dropped_after").is_none(), "{sel}");
+    assert_eq!(
+        default["held_out_srgb_rmse_per_fold"]
+            .as_array()
+            .unwrap()
+            .len(),
+        3,
+        "{sel}"
+    );
+    assert!(text.contains("(left out after fold 1)"), "{text}");
     assert_eq!(sel["held_out_frames"].as_array().unwrap().len(), 3);
     assert!(text.contains("settings: "), "{text}");
     let files = m["maps"].as_array().unwrap();

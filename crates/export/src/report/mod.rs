@@ -276,16 +276,19 @@ pub fn write_report(dir: &Path, maps: Option<&MaterialMaps>) -> Result<PathBuf, 
             "selection",
             "How the settings were chosen",
             &escape(&format!(
-                "Each setting was fitted {folds} times, each time without one stretch of the video, and asked to predict the frames it had not seen (RMS error of sRGB-encoded values; linear radiance in brackets). The training error always prefers more detail; the held-out error says which setting predicts new views. The configured settings last."
+                "Each setting was fitted {folds} times, each time without one stretch of the video, and asked to predict the frames it had not seen (RMS error of sRGB-encoded values; linear radiance in brackets). The training error always prefers more detail; the held-out error says which setting predicts new views. A setting far worse than the configured settings after a fold is not fitted on the rest (its row says so). The configured settings last."
             )),
         );
         let rows: Vec<(String, String)> = c
             .iter()
             .map(|c| {
+                let dropped = c["dropped_after"].as_u64().map_or(String::new(), |n| {
+                    format!(" (fitted on {n} of the {folds} folds only: its error there was far above the configured settings', so it could not be chosen)")
+                });
                 (
                     c["name"].as_str().unwrap_or("?").to_string(),
                     format!(
-                        "held-out {} ({}), training {} ({}): {}",
+                        "held-out {} ({}), training {} ({}): {}{dropped}",
                         num(&c["held_out_srgb_rmse"], 4),
                         num(&c["held_out_rmse"], 4),
                         num(&c["training_srgb_rmse"], 4),

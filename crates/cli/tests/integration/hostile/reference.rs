@@ -319,6 +319,11 @@ pub(super) fn config_cases(c: &mut Cases) {
             r#"{"select_pixels": 10}"#,
             &["validation pixels 10"],
         ),
+        (
+            "validation drop ratio below 1",
+            r#"{"select_drop_ratio": 0.5}"#,
+            &["validation drop ratio 0.5", "0 (off) or above 1"],
+        ),
     ];
     for (name, text, needles) in bad {
         c.fit_config(name, text, reject(needles));
