@@ -152,12 +152,11 @@ pub fn run_fit(a: &FitArgs) -> Result<svbrdf_fit::FitRun> {
                 sel.folds,
                 sel.candidates
                     .iter()
-                    .map(|c| match c.dropped_after {
-                        Some(n) => format!(
-                            "{} {:.4} (left out after fold {n})",
-                            c.name, c.held_out_srgb_rmse
-                        ),
-                        None => format!("{} {:.4}", c.name, c.held_out_srgb_rmse),
+                    .map(|c| {
+                        let dropped = c
+                            .dropped_after
+                            .map_or(String::new(), |n| format!(" (left out after fold {n})"));
+                        format!("{} {:.4}{dropped}", c.name, c.held_out_srgb_rmse)
                     })
                     .collect::<Vec<_>>()
                     .join(", ")

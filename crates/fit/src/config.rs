@@ -269,10 +269,11 @@ pub struct FitConfig {
     /// be chosen (0: every candidate on every fold; else > 1). To be chosen a
     /// candidate must end at least `MARGIN` (5%) below the defaults, so one 25% above
     /// them after a fold would need the remaining folds to reverse it. Measured
-    /// (session 49) on `paper` seed 2 and 10 `tiny` captures (brushed metal Ward and
-    /// GGX, leather, patchwork, tiles; seeds 1 and 2): the same candidate chosen and
-    /// the same maps to the last bit on every one, the validation 15% shorter on
-    /// `paper` (31.4 -> 26.7 s) and 8-28% on `tiny`.
+    /// (session 49) on `paper` seeds 1 and 2, 10 `tiny` captures (brushed metal Ward
+    /// and GGX, leather, patchwork, tiles; seeds 1 and 2) and `hard-small` leather and
+    /// bathroom tiles: the same candidate chosen and the same maps to the last bit on
+    /// every one, the validation 15% shorter on `paper` seed 2 (31.4 -> 26.7 s) and
+    /// 8-28% on `tiny`. A choice, like `MARGIN`, not a validated constant.
     pub select_drop_ratio: f64,
 }
 
